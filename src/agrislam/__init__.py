@@ -1,0 +1,8 @@
+"""agrislam: semantic SLAM for crop fields."""
+
+from importlib.metadata import PackageNotFoundError, version
+
+try:
+    __version__ = version("agrislam")
+except PackageNotFoundError:  # running from a source tree that is not installed
+    __version__ = "0.0.0"

@@ -1,0 +1,320 @@
+"""Configuration: the field schema (which semantic attributes a plant has) and the
+parameters of every stage of the pipeline, as pydantic models.
+
+Everything a run can be told lives here; the parts of the pipeline are built from
+these models (DESIGN.md "Package layout"). `AgrislamConfig` is the root.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import tomllib
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+SECONDS_PER_DAY = 86_400.0
+
+
+class _Strict(BaseModel):
+    """Base for every config model: unknown keys are an error, not silently ignored."""
+
+    model_config = ConfigDict(extra="forbid", validate_assignment=True)
+
+
+# --------------------------------------------------------------------------- schema
+
+
+class GrowthModel(_Strict):
+    """Asymptotic growth dx/dt = rate (l_max - x) of App. B, for a size-like attribute.
+
+    For a discrete attribute the values are read as `n` equal cells of [0, l_max]
+    (smallest first); for a continuous one the mean follows the same ODE.
+    """
+
+    kind: Literal["growth"] = "growth"
+    rate_per_day: float = Field(0.04, gt=0.0, description="alpha of App. B, in 1/day")
+    l_max: float = Field(..., gt=0.0, description="maximum length the plant grows to")
+    process_noise: float = Field(
+        0.0, ge=0.0, le=1.0, description="probability mass per day leaked uniformly (discrete)"
+    )
+    variance_per_day: float = Field(
+        0.0, ge=0.0, description="variance added per day to a continuous attribute"
+    )
+
+
+class DiscreteAttribute(_Strict):
+    kind: Literal["discrete"] = "discrete"
+    values: list[str]
+    prior: list[float] | None = Field(None, description="initial distribution; uniform if absent")
+    time_model: GrowthModel | None = None
+
+    @model_validator(mode="after")
+    def _check(self) -> DiscreteAttribute:
+        if len(self.values) < 2:
+            raise ValueError(f"needs at least 2 values, got {self.values!r}")
+        dup = sorted({v for v in self.values if self.values.count(v) > 1})
+        if dup:
+            raise ValueError(f"duplicate values {dup!r}")
+        if self.prior is not None:
+            p = self.prior
+            if len(p) != len(self.values):
+                raise ValueError(f"prior has {len(p)} entries for {len(self.values)} values")
+            if any((not math.isfinite(x)) or x < 0 for x in p) or not math.isclose(sum(p), 1.0):
+                raise ValueError(f"prior {p!r} is not a probability distribution")
+        return self
+
+    @property
+    def n_values(self) -> int:
+        return len(self.values)
+
+
+class ContinuousAttribute(_Strict):
+    kind: Literal["continuous"] = "continuous"
+    min: float
+    max: float
+    prior_mean: float | None = Field(None, description="initial mean; mid-range if absent")
+    prior_var: float | None = Field(
+        None, gt=0.0, description="initial variance; that of a uniform over [min, max] if absent"
+    )
+    time_model: GrowthModel | None = None
+
+    @model_validator(mode="after")
+    def _check(self) -> ContinuousAttribute:
+        if not (math.isfinite(self.min) and math.isfinite(self.max)):
+            raise ValueError("min and max must be finite (they normalise the entropy, sec. 2.1.2)")
+        if self.min >= self.max:
+            raise ValueError(f"min {self.min} must be below max {self.max}")
+        return self
+
+    @property
+    def initial_mean(self) -> float:
+        return 0.5 * (self.min + self.max) if self.prior_mean is None else self.prior_mean
+
+    @property
+    def initial_var(self) -> float:
+        # variance of a uniform distribution over [min, max]: an uninformed start
+        return (self.max - self.min) ** 2 / 12.0 if self.prior_var is None else self.prior_var
+
+
+Attribute = Annotated[DiscreteAttribute | ContinuousAttribute, Field(discriminator="kind")]
+
+
+class FieldSchema(_Strict):
+    """The semantic attributes every object of the map carries (sec. 2.1)."""
+
+    attributes: dict[str, Attribute] = Field(default_factory=dict)
+
+    @model_validator(mode="before")
+    @classmethod
+    def _name_the_bad_attribute(cls, data: Any) -> Any:
+        """Validate each attribute on its own so that the error names it."""
+        if not isinstance(data, dict) or not isinstance(data.get("attributes"), dict):
+            return data
+        for name, spec in data["attributes"].items():
+            if isinstance(spec, BaseModel):
+                continue
+            if not isinstance(spec, dict):
+                raise ValueError(f"attribute {name!r}: expected a mapping, got {spec!r}")
+            kind = spec.get("kind")
+            model = {"discrete": DiscreteAttribute, "continuous": ContinuousAttribute}.get(kind)
+            if model is None:
+                raise ValueError(
+                    f"attribute {name!r}: unknown kind {kind!r} (expected 'discrete' or "
+                    "'continuous')"
+                )
+            try:
+                model.model_validate(spec)
+            except ValueError as err:
+                raise ValueError(f"attribute {name!r}: {_first_error(err)}") from None
+        return data
+
+    @property
+    def discrete(self) -> dict[str, DiscreteAttribute]:
+        return {k: v for k, v in self.attributes.items() if isinstance(v, DiscreteAttribute)}
+
+    @property
+    def continuous(self) -> dict[str, ContinuousAttribute]:
+        return {k: v for k, v in self.attributes.items() if isinstance(v, ContinuousAttribute)}
+
+    @classmethod
+    def load(cls, path: str | Path) -> FieldSchema:
+        """Read a schema from YAML, TOML or JSON; a top-level `schema` key is accepted too."""
+        data = load_mapping(path)
+        return cls.model_validate(data.get("schema", data))
+
+    @classmethod
+    def preset(cls, name: str) -> FieldSchema:
+        try:
+            return cls.model_validate(SCHEMA_PRESETS[name])
+        except KeyError:
+            raise ValueError(
+                f"unknown schema preset {name!r}; known: {', '.join(sorted(SCHEMA_PRESETS))}"
+            ) from None
+
+
+def _first_error(err: ValueError) -> str:
+    errors = getattr(err, "errors", None)
+    if callable(errors):
+        first = errors()[0]
+        where = ".".join(str(p) for p in first.get("loc", ()))
+        msg = str(first.get("msg", err)).removeprefix("Value error, ")
+        return f"{where}: {msg}" if where else msg
+    return str(err)
+
+
+COLOURS = ["blue", "cyan", "green", "orange", "pink", "red", "yellow"]
+SIZES = ["small", "medium", "big"]
+HEALTH = ["healthy", "diseased"]
+# the paper's simulated plants are 0.12-0.57 m long (sec. 3.1.2)
+LENGTH_RANGE = (0.0, 0.6)
+
+# The paper's attribute tables (Tables 1 and 2).
+SCHEMA_PRESETS: dict[str, dict[str, Any]] = {
+    "colour_size": {
+        "attributes": {
+            "colour": {"kind": "discrete", "values": COLOURS},
+            "size": {"kind": "discrete", "values": SIZES},
+        }
+    },
+    "colour_length": {
+        "attributes": {
+            "colour": {"kind": "discrete", "values": COLOURS},
+            "length": {"kind": "continuous", "min": LENGTH_RANGE[0], "max": LENGTH_RANGE[1]},
+        }
+    },
+    "intercropping": {
+        "attributes": {
+            "type": {"kind": "discrete", "values": ["A", "B"]},
+            "size": {"kind": "discrete", "values": SIZES},
+            "health": {"kind": "discrete", "values": HEALTH},
+        }
+    },
+    "crops_weeds": {
+        "attributes": {
+            "type": {"kind": "discrete", "values": ["crop", "weed"]},
+            "size": {"kind": "discrete", "values": SIZES},
+            "health": {"kind": "discrete", "values": HEALTH},
+        }
+    },
+}
+
+
+# --------------------------------------------------------------------- pipeline parts
+
+
+class SemanticsConfig(_Strict):
+    """Belief updates and the interest heuristic (sec. 2.5, 2.7)."""
+
+    heuristic_alpha: float = Field(2.0, gt=0.0, description="sigmoid steepness, sec. 2.7")
+    heuristic_beta: float = Field(0.2, description="sigmoid midpoint, sec. 2.7")
+    probability_floor: float = Field(
+        1e-9, gt=0.0, lt=0.01, description="smallest probability a belief may hold (no dead zeros)"
+    )
+    surface_resolution: float = Field(0.1, gt=0.0, description="interest surface cell size, m")
+    surface_sigma: float = Field(0.25, gt=0.0, description="spread of one object's interest, m")
+
+
+class SensorDefaults(_Strict):
+    """Uncertainties used when a record does not carry its own."""
+
+    odom_cov_diag: tuple[float, float, float] = (1e-4, 1e-4, 4e-6)
+    detection_sigma_depth: float = Field(0.10, gt=0.0, description="m, along the viewing ray")
+    detection_sigma_lateral: float = Field(0.03, gt=0.0, description="m, across the ray")
+    max_range: float = Field(2.5, gt=0.0, description="detections farther away are dropped (App. A)")
+
+
+class AssociationConfig(_Strict):
+    """Data association (sec. 2.4)."""
+
+    w_sem: float = Field(0.3, ge=0.0, le=1.0, description="semantic weight w_sem")
+    d_inter: float = Field(0.4, gt=0.0, description="minimum distance between plants, m")
+    use_semantics: bool = True
+
+
+class SlamConfig(_Strict):
+    """Graph back end (sec. 2.6)."""
+
+    backend: Literal["incremental", "batch"] = "incremental"
+    batch_optimizer: Literal["lm", "dogleg"] = "lm"
+    robust_kernel: Literal["huber", "cauchy", "none"] = "huber"
+    robust_k: float = Field(1.345, gt=0.0, description="kernel width in standard deviations")
+    relinearize_threshold: float = Field(0.1, gt=0.0)
+    relinearize_skip: int = Field(10, ge=1)
+
+
+class RowsConfig(_Strict):
+    """Row prior knowledge (sec. 2.6.2)."""
+
+    enabled: bool = True
+    row_spacing: float = Field(1.0, gt=0.0, description="m between neighbouring rows")
+    n_det_est: int = Field(12, ge=2, description="detections before the first row fit")
+    row_angle_deg: float | None = Field(None, description="known row direction, if any")
+    sigma_cross: float = Field(0.05, gt=0.0, description="m, plant to row line, across the row")
+    sigma_spacing: float = Field(0.05, gt=0.0, description="m, between neighbouring row lines")
+    max_offset: float = Field(
+        0.2, gt=0.0, description="m; a plant farther from every row gets no row constraint"
+    )
+
+
+class MaintenanceConfig(_Strict):
+    """Merging and pruning (sec. 2.6.3)."""
+
+    merge: bool = True
+    prune: bool = True
+    prune_max_meas: int = Field(1, ge=0, description="objects seen at most this often may go")
+    prune_min_interest: float = Field(0.6, ge=0.0, le=1.0)
+    prune_grace_s: float = Field(20.0, ge=0.0, description="s unseen before pruning")
+
+
+class AgrislamConfig(_Strict):
+    """Root configuration of a run; every value has a default (`agrislam config --defaults`)."""
+
+    schema_: FieldSchema | str | None = Field(
+        None,
+        alias="schema",
+        description="a FieldSchema, a preset name, or none (take it from the log's meta)",
+    )
+    semantics: SemanticsConfig = Field(default_factory=SemanticsConfig)
+    sensor: SensorDefaults = Field(default_factory=SensorDefaults)
+    association: AssociationConfig = Field(default_factory=AssociationConfig)
+    slam: SlamConfig = Field(default_factory=SlamConfig)
+    rows: RowsConfig = Field(default_factory=RowsConfig)
+    maintenance: MaintenanceConfig = Field(default_factory=MaintenanceConfig)
+    label_map: dict[str, dict[str, str]] = Field(
+        default_factory=dict,
+        description="combined detector label -> attribute values, e.g. "
+        "{'crop_small_healthy': {'type': 'crop', 'size': 'small', 'health': 'healthy'}}",
+    )
+
+    model_config = ConfigDict(extra="forbid", validate_assignment=True, populate_by_name=True)
+
+    def field_schema(self) -> FieldSchema | None:
+        if isinstance(self.schema_, str):
+            return FieldSchema.preset(self.schema_)
+        return self.schema_
+
+    @classmethod
+    def load(cls, path: str | Path) -> AgrislamConfig:
+        return cls.model_validate(load_mapping(path))
+
+
+def load_mapping(path: str | Path) -> dict[str, Any]:
+    """Read a YAML, TOML or JSON file into a dict, choosing the parser by extension."""
+    path = Path(path)
+    text = path.read_text(encoding="utf-8")
+    suffix = path.suffix.lower()
+    if suffix == ".toml":
+        data = tomllib.loads(text)
+    elif suffix == ".json":
+        data = json.loads(text)
+    elif suffix in (".yaml", ".yml"):
+        data = yaml.safe_load(text)
+    else:
+        raise ValueError(f"{path}: unknown config format {suffix!r} (use .yaml, .toml or .json)")
+    if not isinstance(data, dict):
+        raise ValueError(f"{path}: expected a mapping at the top level")
+    return data
