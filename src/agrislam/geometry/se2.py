@@ -44,7 +44,9 @@ def compose_increments(
     return compose(d1, d2), j1 @ cov1 @ j1.T + j2 @ cov2 @ j2.T
 
 
-def to_map_frame(pose: np.ndarray, xy: np.ndarray, cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def to_map_frame(
+    pose: np.ndarray, xy: np.ndarray, cov: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
     """Robot-frame points (m, 2) with covariances (m, 2, 2) into the map frame."""
     r = rotation(pose[2])
     return xy @ r.T + pose[:2], r @ cov @ r.T
