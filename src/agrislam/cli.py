@@ -37,7 +37,9 @@ def main(
 
 @app.command("config")
 def config_cmd(
-    defaults: Annotated[bool, typer.Option("--defaults", help="Print every default value.")] = False,
+    defaults: Annotated[
+        bool, typer.Option("--defaults", help="Print every default value.")
+    ] = False,
 ) -> None:
     """Show the configuration (`--defaults`: every parameter with its default, as JSON)."""
     cfg = AgrislamConfig()

@@ -224,7 +224,9 @@ class SensorDefaults(_Strict):
     odom_cov_diag: tuple[float, float, float] = (1e-4, 1e-4, 4e-6)
     detection_sigma_depth: float = Field(0.10, gt=0.0, description="m, along the viewing ray")
     detection_sigma_lateral: float = Field(0.03, gt=0.0, description="m, across the ray")
-    max_range: float = Field(2.5, gt=0.0, description="detections farther away are dropped (App. A)")
+    max_range: float = Field(
+        2.5, gt=0.0, description="detections farther away are dropped (App. A)"
+    )
 
 
 class AssociationConfig(_Strict):
