@@ -235,6 +235,13 @@ class AssociationConfig(_Strict):
     w_sem: float = Field(0.3, ge=0.0, le=1.0, description="semantic weight w_sem")
     d_inter: float = Field(0.4, gt=0.0, description="minimum distance between plants, m")
     use_semantics: bool = True
+    gate_sigma_max: float = Field(
+        1.0, gt=0.0, description="m; largest object position sigma the spatial gate allows for"
+    )
+    index_margin: float = Field(
+        0.3, ge=0.0, description="m an estimate may move between spatial index rebuilds"
+    )
+    index_rebuild_steps: int = Field(50, ge=1, description="steps between index rebuilds")
 
 
 class SlamConfig(_Strict):

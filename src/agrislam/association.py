@@ -1,0 +1,197 @@
+"""Data association (sec. 2.4): spatial gating, the association matrix, and GNN.
+
+The association matrix entry of detection m and object n is
+
+    a_mn = prod_{i in Y_m} (1 - w_sem * SSS_imn) * min(|e|^2 / d_inter^2, e^T K_n^-1 e)
+
+with e = z_n - z_m, K_n the object's marginal position covariance; entries above 1
+are forbidden; the assignment minimises the sum (scipy's linear_sum_assignment).
+Only objects within the largest distance the formula can still accept are looked
+at, found through a KD-tree over the map, so a frame's cost does not grow with it.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+from scipy.spatial import cKDTree
+
+from agrislam.config import AssociationConfig, FieldSchema
+from agrislam.records import DiscreteMeasurement, Measurement
+from agrislam.semantics.beliefs import BeliefTable
+
+FORBIDDEN = 1e6  # cost of an assignment the paper forbids (a_mn > 1)
+
+
+@dataclass(frozen=True, slots=True)
+class PlacedDetections:
+    """A frame's detections in the map frame (DESIGN step 3)."""
+
+    xy: np.ndarray  # (m, 2)
+    cov: np.ndarray  # (m, 2, 2)
+    measurements: Sequence[Mapping[str, Measurement]]
+
+    def __len__(self) -> int:
+        return len(self.xy)
+
+
+def informative_measurements(
+    schema: FieldSchema | None, measurements: Mapping[str, Measurement]
+) -> dict[str, Measurement]:
+    """The measured attributes Y of a detection: a discrete one with p < 1/n carries no
+    information (sec. 2.3) and takes no part in association either."""
+    if schema is None:
+        return {}
+    kept: dict[str, Measurement] = {}
+    for name, m in measurements.items():
+        spec = schema.attributes.get(name)
+        if spec is None:
+            continue
+        if isinstance(m, DiscreteMeasurement) and m.p < 1.0 / len(spec.values):  # type: ignore[union-attr]
+            continue
+        kept[name] = m
+    return kept
+
+
+def semantic_term(
+    beliefs: BeliefTable,
+    object_ids: np.ndarray,
+    measurements: Sequence[Mapping[str, Measurement]],
+    w_sem: float,
+    t: float,
+) -> np.ndarray:
+    """prod_i (1 - w_sem * SSS_imn) over each detection's measured attributes: (m, k)."""
+    schema = beliefs.schema
+    term = np.ones((len(measurements), len(object_ids)))
+    if schema is None or len(object_ids) == 0:
+        return term
+    for name, spec in schema.attributes.items():
+        rows = [j for j, ms in enumerate(measurements) if name in ms]
+        if not rows:
+            continue
+        got = [measurements[j][name] for j in rows]
+        if isinstance(got[0], DiscreteMeasurement):
+            index = {v: i for i, v in enumerate(spec.values)}  # type: ignore[union-attr]
+            value_idx = np.array([index[m.value] for m in got])  # type: ignore[union-attr]
+            p = np.array([m.p for m in got])  # type: ignore[union-attr]
+            belief = beliefs.probabilities(name, object_ids, t)  # (k, n)
+            sss = belief[:, value_idx].T * p[:, None]  # SSS^d = P(x_n = s_m) p_m
+        else:
+            mean, var = beliefs.gaussian(name, object_ids, t)
+            value = np.array([m.value for m in got])[:, None]  # type: ignore[union-attr]
+            var_m = np.array([m.var for m in got])[:, None]  # type: ignore[union-attr]
+            s2 = var[None, :] + var_m
+            # SSS^c = tanh(N(s_n - s_m; 0, sigma_n^2 + sigma_m^2)), sec. 2.4
+            sss = np.tanh(
+                np.exp(-0.5 * (mean[None, :] - value) ** 2 / s2) / np.sqrt(2 * np.pi * s2)
+            )
+        term[rows] *= 1.0 - w_sem * sss
+    return term
+
+
+def distance_term(
+    detection_xy: np.ndarray, object_xy: np.ndarray, object_cov: np.ndarray, d_inter: float
+) -> np.ndarray:
+    """min(|e|^2 / d_inter^2, e^T K_n^-1 e) for every detection x object pair: (m, k)."""
+    e = object_xy[None, :, :] - detection_xy[:, None, :]  # e_mn = z_n - z_m
+    euclidean = np.einsum("mki,mki->mk", e, e) / d_inter**2
+    a, b, c = object_cov[:, 0, 0], object_cov[:, 0, 1], object_cov[:, 1, 1]
+    det = a * c - b * b
+    ex, ey = e[..., 0], e[..., 1]
+    mahalanobis = (c * ex * ex - 2 * b * ex * ey + a * ey * ey) / det  # closed-form 2x2 inverse
+    return np.minimum(euclidean, mahalanobis)
+
+
+def association_matrix(
+    detections: PlacedDetections,
+    object_ids: np.ndarray,
+    object_xy: np.ndarray,
+    object_cov: np.ndarray,
+    beliefs: BeliefTable,
+    config: AssociationConfig,
+    t: float,
+) -> np.ndarray:
+    """The matrix A of sec. 2.4 over the frame's detections x candidate objects."""
+    distance = distance_term(detections.xy, object_xy, object_cov, config.d_inter)
+    if not config.use_semantics:
+        return distance
+    semantic = semantic_term(beliefs, object_ids, detections.measurements, config.w_sem, t)
+    return semantic * distance
+
+
+def assign(matrix: np.ndarray) -> np.ndarray:
+    """GNN: the minimum-cost assignment with entries above 1 forbidden; for each row the
+    chosen column, or -1 where the detection starts a new object."""
+    chosen = np.full(matrix.shape[0], -1)
+    if matrix.size == 0:
+        return chosen
+    cost = np.where(matrix <= 1.0, matrix, FORBIDDEN)
+    rows, cols = linear_sum_assignment(cost)
+    ok = cost[rows, cols] <= 1.0
+    chosen[rows[ok]] = cols[ok]
+    return chosen
+
+
+def max_association_distance(
+    d_inter: float, sigma_max: float, w_sem: float, n_measured: int
+) -> float:
+    """The farthest a detection can be from an object and still get a_mn <= 1.
+
+    SSS <= 1, so the semantic term is at least (1 - w_sem)^|Y| and the distance term
+    may reach (1 - w_sem)^-|Y|: |e| <= max(d_inter, sqrt(lambda_max(K))) (1 - w_sem)^(-|Y|/2).
+    (Sec. 2.4 states the looser bound max(d_inter, sqrt(lambda)) w_sem^-|Y|.)
+    """
+    return max(d_inter, sigma_max) * (1.0 - w_sem) ** (-0.5 * n_measured)
+
+
+class SpatialIndex:
+    """KD-tree over object positions, rebuilt by the caller now and then; objects added or
+    moved since the last build are searched directly. Every query is widened by `margin`,
+    the distance the map may have moved an object since the build."""
+
+    def __init__(self, margin: float = 0.3) -> None:
+        self.margin = margin
+        self._tree: cKDTree | None = None
+        self._tree_ids = np.empty(0, dtype=int)
+        self._fresh: dict[int, np.ndarray] = {}
+
+    def rebuild(self, ids: np.ndarray, xy: np.ndarray) -> None:
+        self._tree = cKDTree(xy) if len(ids) else None
+        self._tree_ids = np.asarray(ids, dtype=int)
+        self._fresh.clear()
+
+    @property
+    def n_fresh(self) -> int:
+        return len(self._fresh)
+
+    def move(self, ids: np.ndarray, xy: np.ndarray) -> None:
+        """Objects just added, or whose estimate was just refreshed."""
+        for i, p in zip(ids.tolist(), xy, strict=True):
+            self._fresh[i] = p
+
+    def forget(self, ids: np.ndarray) -> None:
+        for i in np.atleast_1d(ids).tolist():
+            self._fresh.pop(i, None)
+        if len(self._tree_ids):
+            self._tree_ids = np.where(np.isin(self._tree_ids, ids), -1, self._tree_ids)
+
+    def query(self, centres: np.ndarray, radius: float) -> np.ndarray:
+        """Ids of all objects within `radius` of any of `centres` (sorted, unique); may
+        include objects up to `margin` farther, never misses one within `radius`."""
+        found: list[np.ndarray] = []
+        if self._tree is not None and len(centres):
+            hits = self._tree.query_ball_point(centres, radius + self.margin)
+            idx = np.unique(np.concatenate([np.asarray(h, dtype=int) for h in hits]))
+            ids = self._tree_ids[idx]
+            found.append(ids[ids >= 0])
+        if self._fresh and len(centres):
+            fresh_ids = np.fromiter(self._fresh.keys(), dtype=int, count=len(self._fresh))
+            fresh_xy = np.stack(list(self._fresh.values()))
+            d2 = ((fresh_xy[:, None, :] - centres[None, :, :]) ** 2).sum(-1).min(axis=1)
+            found.append(fresh_ids[d2 <= radius**2])
+        if not found:
+            return np.empty(0, dtype=int)
+        return np.unique(np.concatenate(found))
