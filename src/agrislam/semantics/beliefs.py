@@ -1,0 +1,441 @@
+"""The belief table: the semantic state of every object of the map, as a struct of arrays
+(DESIGN.md "State layout"), with the measurement update (sec. 2.5), the lazy time update
+(sec. 2.5.2, App. B), the fusion of merged objects and the interest heuristic (sec. 2.7).
+
+Row i is object i. Each discrete attribute is an (n_objects, n_values) probability array,
+each continuous one a mean and a variance array. A belief is stored at its own time
+(`belief_time`); reading it at a later t returns it brought forward through the
+attribute's time model without storing that; an update brings it to t and stores the
+result. So a step costs nothing for objects that are not touched, and reading never
+changes what a later update gives.
+"""
+
+from __future__ import annotations
+
+import math
+import numbers
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from agrislam.config import ContinuousAttribute, DiscreteAttribute, FieldSchema, SemanticsConfig
+from agrislam.records import ContinuousMeasurement, DiscreteMeasurement, Measurement
+from agrislam.semantics import continuous, discrete, growth, heuristic
+
+
+class BeliefInputError(ValueError):
+    """A measurement or request the table cannot take; the table is left unchanged."""
+
+
+@dataclass(frozen=True, slots=True)
+class UpdateReport:
+    """What one `BeliefTable.update` did, per attribute name."""
+
+    applied: dict[str, int]  # measurements that changed a belief
+    ignored: dict[str, int]  # discrete measurements with p < 1/n (sec. 2.3)
+
+
+@dataclass(slots=True)
+class _Collected:
+    """The measurements of one attribute in one update call, validated."""
+
+    rows: list[int]  # position in the call's ids
+    values: list[float]  # value index (discrete) or measured value (continuous)
+    spread: list[float]  # p (discrete) or measurement variance (continuous)
+
+
+def _occurrence(local: np.ndarray) -> np.ndarray:
+    """For each entry, how many equal entries come before it (0 for the first)."""
+    order = np.argsort(local, kind="stable")
+    ordered = local[order]
+    starts = np.flatnonzero(np.r_[True, ordered[1:] != ordered[:-1]])
+    group_start = np.repeat(starts, np.diff(np.r_[starts, len(local)]))
+    occurrence = np.empty(len(local), dtype=np.int64)
+    occurrence[order] = np.arange(len(local)) - group_start
+    return occurrence
+
+
+def _rounds(local: np.ndarray) -> list[np.ndarray]:
+    """Split entries into rounds in which every object appears at most once, in order, so
+    an object measured twice in one call gets both updates one after the other."""
+    if len(np.unique(local)) == len(local):
+        return [np.arange(len(local))]
+    occurrence = _occurrence(local)
+    return [np.flatnonzero(occurrence == r) for r in range(int(occurrence.max()) + 1)]
+
+
+def _read_only(array: np.ndarray) -> np.ndarray:
+    view = array.view()
+    view.flags.writeable = False
+    return view
+
+
+class BeliefTable:
+    """Semantic beliefs of all objects of a map, one row per object."""
+
+    def __init__(
+        self, schema: FieldSchema | None, config: SemanticsConfig, capacity: int = 1024
+    ) -> None:
+        self.schema = schema
+        self.config = config
+        self._n = 0
+        self._capacity = max(int(capacity), 1)
+        attributes = schema.attributes if schema is not None else {}
+        self._discrete_spec: dict[str, DiscreteAttribute] = {
+            k: v for k, v in attributes.items() if isinstance(v, DiscreteAttribute)
+        }
+        self._continuous_spec: dict[str, ContinuousAttribute] = {
+            k: v for k, v in attributes.items() if isinstance(v, ContinuousAttribute)
+        }
+        self._value_index = {
+            name: {value: i for i, value in enumerate(spec.values)}
+            for name, spec in self._discrete_spec.items()
+        }
+        self._prior = {
+            name: np.full(spec.n_values, 1.0 / spec.n_values)
+            if spec.prior is None
+            else np.asarray(spec.prior, dtype=float) / sum(spec.prior)
+            for name, spec in self._discrete_spec.items()
+        }
+        self._transitions = {
+            name: growth.TransitionCache(spec.n_values, spec.time_model)
+            for name, spec in self._discrete_spec.items()
+            if spec.time_model is not None
+        }
+        # the smallest variance a continuous belief holds, relative to its range as the
+        # probability floor is for discrete ones: a zero-variance measurement cannot freeze it
+        self._var_floor = {
+            name: config.probability_floor * (spec.max - spec.min) ** 2
+            for name, spec in self._continuous_spec.items()
+        }
+        c = self._capacity
+        self._p = {name: np.empty((c, spec.n_values)) for name, spec in self._discrete_spec.items()}
+        self._mean = {name: np.empty(c) for name in self._continuous_spec}
+        self._var = {name: np.empty(c) for name in self._continuous_spec}
+        self._n_meas = np.zeros(c, dtype=np.int64)
+        self._last_update = np.empty(c)
+        self._belief_time = np.empty(c)
+        self.n_ignored: dict[str, int] = dict.fromkeys(self._discrete_spec, 0)
+
+    # ------------------------------------------------------------------ size and rows
+
+    def __len__(self) -> int:
+        return self._n
+
+    @property
+    def n_meas(self) -> np.ndarray:
+        """Measurements per object (n,), read-only."""
+        return _read_only(self._n_meas[: self._n])
+
+    @property
+    def last_update(self) -> np.ndarray:
+        """Time (s) of each object's last measurement, or of its creation (n,), read-only."""
+        return _read_only(self._last_update[: self._n])
+
+    @property
+    def belief_time(self) -> np.ndarray:
+        """Time (s) each stored belief refers to (n,), read-only."""
+        return _read_only(self._belief_time[: self._n])
+
+    def _reserve(self, n_rows: int) -> None:
+        """Room for n_rows objects; capacity doubles, so growing is amortised O(1) per row."""
+        if n_rows <= self._capacity:
+            return
+        capacity = max(2 * self._capacity, n_rows)
+        for store in (self._p, self._mean, self._var):
+            for name, old in store.items():
+                store[name] = self._grown(old, capacity)
+        self._n_meas = self._grown(self._n_meas, capacity)
+        self._last_update = self._grown(self._last_update, capacity)
+        self._belief_time = self._grown(self._belief_time, capacity)
+        self._capacity = capacity
+
+    def _grown(self, old: np.ndarray, capacity: int) -> np.ndarray:
+        new = np.zeros((capacity, *old.shape[1:]), dtype=old.dtype)
+        new[: self._n] = old[: self._n]
+        return new
+
+    def add(self, count: int, t: float) -> np.ndarray:
+        """`count` new objects at time t with the initial beliefs; returns their row ids."""
+        if count < 0:
+            raise BeliefInputError(f"cannot add {count} objects")
+        if not math.isfinite(t):
+            raise BeliefInputError(f"time t = {t!r} is not finite")
+        start, stop = self._n, self._n + int(count)
+        self._reserve(stop)
+        for name, prior in self._prior.items():
+            self._p[name][start:stop] = prior
+        for name, spec in self._continuous_spec.items():
+            self._mean[name][start:stop] = spec.initial_mean
+            self._var[name][start:stop] = spec.initial_var
+        self._n_meas[start:stop] = 0
+        self._last_update[start:stop] = t
+        self._belief_time[start:stop] = t
+        self._n = stop
+        return np.arange(start, stop, dtype=np.int64)
+
+    def _ids(self, ids: np.ndarray | Sequence[int] | None) -> np.ndarray | slice:
+        """Validated row ids; None (every object) becomes a slice, cheaper than fancy indexing."""
+        if ids is None:
+            return slice(0, self._n)
+        ids = np.asarray(ids)
+        if ids.ndim != 1 or (len(ids) and not np.issubdtype(ids.dtype, np.integer)):
+            raise BeliefInputError(f"object ids must be a 1-d integer array, got {ids!r}")
+        if len(ids) and (ids.min() < 0 or ids.max() >= self._n):
+            bad = ids[(ids < 0) | (ids >= self._n)]
+            raise BeliefInputError(f"object ids {bad.tolist()} not in the table (0..{self._n - 1})")
+        return ids.astype(np.int64, copy=False)
+
+    # ----------------------------------------------------------------- reading at t
+
+    def _discrete_at(self, name: str, ids: np.ndarray | slice, t: float | None) -> np.ndarray:
+        """Beliefs of validated `ids` brought to t, as a new array."""
+        belief = self._p[name][ids]
+        cache = self._transitions.get(name)
+        if t is None or cache is None:
+            return belief.copy() if isinstance(ids, slice) else belief
+        # sec. 2.5.2 / App. B: xi(t) = A(t - t_belief) xi(t_belief)
+        return growth.propagate(belief, cache(t - self._belief_time[ids]))
+
+    def _continuous_at(
+        self, name: str, ids: np.ndarray | slice, t: float | None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Mean and variance of validated `ids` brought to t, as new arrays."""
+        mean, var = self._mean[name][ids], self._var[name][ids]
+        model = self._continuous_spec[name].time_model
+        if t is None or model is None:
+            return (mean.copy(), var.copy()) if isinstance(ids, slice) else (mean, var)
+        dt = t - self._belief_time[ids]
+        return growth.grown_mean(mean, model, dt), growth.grown_variance(var, model, dt)
+
+    def _all_discrete_at(self, ids: np.ndarray | slice, t: float | None) -> dict[str, np.ndarray]:
+        return {name: self._discrete_at(name, ids, t) for name in self._discrete_spec}
+
+    def _all_continuous_at(
+        self, ids: np.ndarray | slice, t: float | None
+    ) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+        return {name: self._continuous_at(name, ids, t) for name in self._continuous_spec}
+
+    def probabilities(
+        self, name: str, ids: np.ndarray | Sequence[int], t: float | None = None
+    ) -> np.ndarray:
+        """P(x_name) of objects `ids` at time t (the stored time if None): (k, n_values)."""
+        if name not in self._discrete_spec:
+            raise BeliefInputError(f"{name!r} is not a discrete attribute of the schema")
+        return self._discrete_at(name, self._ids(ids), t)
+
+    def gaussian(
+        self, name: str, ids: np.ndarray | Sequence[int], t: float | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Mean and variance of continuous attribute `name` of objects `ids` at time t."""
+        if name not in self._continuous_spec:
+            raise BeliefInputError(f"{name!r} is not a continuous attribute of the schema")
+        return self._continuous_at(name, self._ids(ids), t)
+
+    def discrete_beliefs(
+        self, ids: np.ndarray | Sequence[int] | None = None, t: float | None = None
+    ) -> dict[str, np.ndarray]:
+        """Every discrete attribute of objects `ids` (all if None) at t: name -> (k, n)."""
+        return self._all_discrete_at(self._ids(ids), t)
+
+    def continuous_beliefs(
+        self, ids: np.ndarray | Sequence[int] | None = None, t: float | None = None
+    ) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+        """Every continuous attribute of objects `ids` (all if None) at t: name -> (mean, var)."""
+        return self._all_continuous_at(self._ids(ids), t)
+
+    def interest(
+        self, ids: np.ndarray | Sequence[int] | None = None, t: float | None = None
+    ) -> np.ndarray:
+        """Interest heuristic h (eq. 2) of objects `ids` (all if None) at time t: (k,)."""
+        ids = self._ids(ids)
+        entropies = [
+            continuous.entropy_normalised(self._continuous_at(name, ids, t)[1], spec.max - spec.min)
+            for name, spec in self._continuous_spec.items()
+        ]
+        beliefs = self._all_discrete_at(ids, t).values()
+        return heuristic.interest(self._n_meas[ids], beliefs, entropies, self.config)
+
+    # ------------------------------------------------------------------------ updates
+
+    def _validate(
+        self, ids: np.ndarray, measurements: Sequence[Mapping[str, Measurement]]
+    ) -> dict[str, _Collected]:
+        """Check every measurement before anything changes; group them by attribute."""
+        collected: dict[str, _Collected] = {}
+        for k, mapping in enumerate(measurements):
+            for name, m in mapping.items():
+                where = f"object {int(ids[k])}, attribute {name!r}"
+                if name in self._value_index:
+                    if not isinstance(m, DiscreteMeasurement):
+                        raise BeliefInputError(
+                            f"{where}: expected a discrete measurement, got {m!r}"
+                        )
+                    try:
+                        index = self._value_index[name].get(m.value)
+                    except TypeError:
+                        index = None
+                    if index is None:
+                        values = self._discrete_spec[name].values
+                        raise BeliefInputError(f"{where}: value {m.value!r} not in {values}")
+                    if not (isinstance(m.p, numbers.Real) and 0.0 <= m.p <= 1.0):
+                        raise BeliefInputError(f"{where}: p = {m.p!r} is not in [0, 1]")
+                    value, spread = float(index), float(m.p)
+                elif name in self._continuous_spec:
+                    if not isinstance(m, ContinuousMeasurement):
+                        raise BeliefInputError(
+                            f"{where}: expected a continuous measurement, got {m!r}"
+                        )
+                    if not (isinstance(m.value, numbers.Real) and math.isfinite(m.value)):
+                        raise BeliefInputError(f"{where}: value {m.value!r} is not a finite number")
+                    if not (isinstance(m.var, numbers.Real) and 0.0 <= m.var < math.inf):
+                        raise BeliefInputError(
+                            f"{where}: variance {m.var!r} is not a finite number >= 0"
+                        )
+                    value, spread = float(m.value), float(m.var)
+                else:
+                    known = ", ".join(sorted(self._value_index) + sorted(self._continuous_spec))
+                    raise BeliefInputError(
+                        f"{where}: unknown attribute (the schema has: {known or 'none'})"
+                    )
+                group = collected.setdefault(name, _Collected([], [], []))
+                group.rows.append(k)
+                group.values.append(value)
+                group.spread.append(spread)
+        return collected
+
+    def update(
+        self,
+        ids: np.ndarray | Sequence[int],
+        measurements: Sequence[Mapping[str, Measurement]],
+        t: float,
+    ) -> UpdateReport:
+        """Apply one mapping of measurements per object id at time t (sec. 2.5).
+
+        Each object is first brought to t (time update), then updated by Bayes (discrete,
+        Assumption 1) or Kalman (continuous); its measurement count grows by one per
+        occurrence, even for an empty mapping (a detection without semantics). An id may
+        appear more than once; it then gets every update, in order. Everything is
+        validated first: bad input raises BeliefInputError and changes nothing.
+        """
+        ids = self._ids(ids)
+        if len(measurements) != len(ids):
+            raise BeliefInputError(
+                f"{len(ids)} object ids but {len(measurements)} measurement mappings"
+            )
+        if not math.isfinite(t):
+            raise BeliefInputError(f"time t = {t!r} is not finite")
+        collected = self._validate(ids, measurements)
+
+        unique_ids, position = np.unique(ids, return_inverse=True)
+        beliefs = self._all_discrete_at(unique_ids, t)
+        gaussians = self._all_continuous_at(unique_ids, t)
+        applied, ignored = {}, {}
+        floor = self.config.probability_floor
+        for name, group in collected.items():
+            local = position[np.asarray(group.rows, dtype=np.int64)]
+            values, spread = np.asarray(group.values), np.asarray(group.spread)
+            if name in beliefs:
+                skip = discrete.ignored_measurements(spread, self._discrete_spec[name].n_values)
+                ignored[name] = int(skip.sum())
+                local, values, spread = local[~skip], values[~skip].astype(np.int64), spread[~skip]
+                belief = beliefs[name]
+                for r in _rounds(local):
+                    rows = local[r]
+                    belief[rows] = discrete.bayes_update(belief[rows], values[r], spread[r], floor)
+            else:
+                mean, var = gaussians[name]
+                for r in _rounds(local):
+                    rows = local[r]
+                    mean[rows], var[rows] = continuous.kalman_update(
+                        mean[rows], var[rows], values[r], spread[r]
+                    )
+                np.maximum(var, self._var_floor[name], out=var)
+            applied[name] = len(local)
+
+        for name, belief in beliefs.items():
+            self._p[name][unique_ids] = belief
+        for name, (mean, var) in gaussians.items():
+            self._mean[name][unique_ids], self._var[name][unique_ids] = mean, var
+        for name, count in ignored.items():
+            self.n_ignored[name] += count
+        self._n_meas[unique_ids] += np.bincount(position, minlength=len(unique_ids))
+        self._last_update[unique_ids] = np.maximum(self._last_update[unique_ids], t)
+        self._belief_time[unique_ids] = np.maximum(self._belief_time[unique_ids], t)
+        return UpdateReport(applied=applied, ignored=ignored)
+
+    def fuse(self, keep: int, drop: int) -> None:
+        """Merge object `drop`'s beliefs into `keep` as independent evidence (sec. 2.6.3).
+
+        Both are brought to the later of their belief times; discrete beliefs multiply and
+        the shared prior is divided out once, Gaussians combine in information form (the
+        continuous prior divided out likewise); measurement counts add. Row `drop` stays
+        as it was: marking it merged is the caller's business.
+        """
+        pair = self._ids(np.array([keep, drop]))
+        if pair[0] == pair[1]:
+            raise BeliefInputError(f"cannot fuse object {keep} with itself")
+        t = float(self._belief_time[pair].max())
+        floor = self.config.probability_floor
+        for name, belief in self._all_discrete_at(pair, t).items():
+            fused = discrete.fuse(belief[:1], belief[1:], self._prior[name], floor)
+            self._p[name][keep] = fused[0]
+        for name, (mean, var) in self._all_continuous_at(pair, t).items():
+            spec = self._continuous_spec[name]
+            m, v = continuous.fuse(
+                mean[0], var[0], mean[1], var[1], spec.initial_mean, spec.initial_var
+            )
+            self._mean[name][keep], self._var[name][keep] = m, max(v, self._var_floor[name])
+        self._n_meas[keep] += self._n_meas[drop]
+        self._last_update[keep] = self._last_update[pair].max()
+        self._belief_time[keep] = t
+
+    # --------------------------------------------------------------------- persistence
+
+    def state(self) -> dict[str, np.ndarray]:
+        """Copies of every array (n rows), keyed `n_meas`, `last_update`, `belief_time`,
+        `p/<name>`, `mean/<name>`, `var/<name>`, `n_ignored/<name>`; `from_state` reads them."""
+        n = self._n
+        out = {
+            "n_meas": self._n_meas[:n].copy(),
+            "last_update": self._last_update[:n].copy(),
+            "belief_time": self._belief_time[:n].copy(),
+        }
+        out.update({f"p/{k}": v[:n].copy() for k, v in self._p.items()})
+        out.update({f"mean/{k}": v[:n].copy() for k, v in self._mean.items()})
+        out.update({f"var/{k}": v[:n].copy() for k, v in self._var.items()})
+        out.update({f"n_ignored/{k}": np.array(v) for k, v in self.n_ignored.items()})
+        return out
+
+    @classmethod
+    def from_state(
+        cls, schema: FieldSchema | None, config: SemanticsConfig, state: Mapping[str, np.ndarray]
+    ) -> BeliefTable:
+        """A table holding `state` (as `state()` wrote it) for the same schema."""
+        n = len(state["n_meas"])
+        table = cls(schema, config, capacity=max(n, 1))
+        table._n = n
+        wanted = {
+            "n_meas": (table._n_meas, (n,)),
+            "last_update": (table._last_update, (n,)),
+            "belief_time": (table._belief_time, (n,)),
+        }
+        for name, spec in table._discrete_spec.items():
+            wanted[f"p/{name}"] = (table._p[name], (n, spec.n_values))
+        for name in table._continuous_spec:
+            wanted[f"mean/{name}"] = (table._mean[name], (n,))
+            wanted[f"var/{name}"] = (table._var[name], (n,))
+        for key, (target, shape) in wanted.items():
+            if key not in state:
+                raise BeliefInputError(f"belief state lacks {key!r}")
+            array = np.asarray(state[key])
+            if array.shape != shape or not np.all(np.isfinite(array)):
+                raise BeliefInputError(
+                    f"belief state {key!r}: expected finite values of shape {shape}, "
+                    f"got shape {array.shape}"
+                )
+            target[:n] = array
+        for name in table.n_ignored:
+            table.n_ignored[name] = int(state.get(f"n_ignored/{name}", 0))
+        return table
