@@ -1,0 +1,181 @@
+"""objects.csv and trajectory.csv: columns, values read back with the csv module, errors."""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import time
+
+import numpy as np
+import pytest
+
+from agrislam.config import COLOURS, SIZES, FieldSchema
+from agrislam.sinks.csv import write_objects_csv, write_trajectory_csv
+from agrislam.snapshot import MapSnapshot, ObjectMap
+
+
+def read_csv(path) -> tuple[list[str], list[dict[str, str]]]:
+    with open(path, newline="", encoding="utf-8") as f:
+        reader = csv.DictReader(f)
+        return list(reader.fieldnames or []), list(reader)
+
+
+def two_plants(schema: FieldSchema | None, size_values: int = 3) -> MapSnapshot:
+    """Two plants with hand-picked beliefs."""
+    size = np.array([[0.2, 0.7, 0.1], [0.05, 0.15, 0.8]])[:, :size_values]
+    return MapSnapshot(
+        schema=schema,
+        objects=ObjectMap(
+            ids=np.array([7, 3]),
+            xy=np.array([[1.25, -2.5], [10.0, 0.125]]),
+            cov=np.array([[[0.04, 0.01], [0.01, 0.09]], [[1e-4, 0.0], [0.0, 4e-4]]]),
+            n_meas=np.array([4, 1]),
+            interest=np.array([0.3, 0.95]),
+            row=np.array([0, -1]),
+            discrete={"size": size},
+            continuous={"length": (np.array([0.31, 0.12]), np.array([0.0025, 0.01]))},
+        ),
+        trajectories={},
+        dead_reckoning={},
+    )
+
+
+SIZE_SCHEMA = FieldSchema.model_validate(
+    {
+        "attributes": {
+            "size": {"kind": "discrete", "values": SIZES},
+            "length": {"kind": "continuous", "min": 0.0, "max": 0.6},
+        }
+    }
+)
+
+
+def test_objects_csv_header_follows_the_design(sample_snapshot, tmp_path):
+    header, rows = read_csv(write_objects_csv(sample_snapshot, tmp_path / "objects.csv"))
+    expected = ["id", "x", "y", "cov_xx", "cov_xy", "cov_yy", "n_meas", "interest", "status"]
+    expected += ["colour", "colour_p"] + [f"colour_{c}" for c in COLOURS]
+    expected += ["size", "size_p"] + [f"size_{s}" for s in SIZES]
+    expected += ["length", "length_var"]
+    assert header == expected
+    assert len(rows) == len(sample_snapshot.objects) == 30
+
+
+def test_objects_csv_values_match_the_snapshot(sample_snapshot, tmp_path):
+    _, rows = read_csv(write_objects_csv(sample_snapshot, tmp_path / "objects.csv"))
+    obj = sample_snapshot.objects
+
+    def col(name: str) -> np.ndarray:
+        return np.array([float(r[name]) for r in rows])
+
+    assert [int(r["id"]) for r in rows] == obj.ids.tolist()
+    np.testing.assert_allclose(col("x"), obj.xy[:, 0], rtol=1e-8, atol=1e-12)
+    np.testing.assert_allclose(col("y"), obj.xy[:, 1], rtol=1e-8, atol=1e-12)
+    np.testing.assert_allclose(col("cov_xy"), obj.cov[:, 0, 1], rtol=1e-8)
+    np.testing.assert_allclose(col("cov_yy"), obj.cov[:, 1, 1], rtol=1e-8)
+    np.testing.assert_allclose(col("interest"), obj.interest, rtol=1e-8)
+    assert [int(r["n_meas"]) for r in rows] == obj.n_meas.tolist()
+    assert {r["status"] for r in rows} == {"active"}
+    colour = obj.discrete["colour"]
+    assert [r["colour"] for r in rows] == [COLOURS[i] for i in colour.argmax(axis=1)]
+    np.testing.assert_allclose(col("colour_p"), colour.max(axis=1), rtol=1e-8)
+    for j, c in enumerate(COLOURS):
+        np.testing.assert_allclose(col(f"colour_{c}"), colour[:, j], rtol=1e-8)
+    np.testing.assert_allclose(col("length"), obj.continuous["length"][0], rtol=1e-8)
+    np.testing.assert_allclose(col("length_var"), obj.continuous["length"][1], rtol=1e-8)
+
+
+def test_objects_csv_hand_built_rows(tmp_path):
+    _, rows = read_csv(write_objects_csv(two_plants(SIZE_SCHEMA), tmp_path / "o.csv"))
+    assert rows[0] == {
+        "id": "7",
+        "x": "1.25",
+        "y": "-2.5",
+        "cov_xx": "0.04",
+        "cov_xy": "0.01",
+        "cov_yy": "0.09",
+        "n_meas": "4",
+        "interest": "0.3",
+        "status": "active",
+        "size": "medium",
+        "size_p": "0.7",
+        "size_small": "0.2",
+        "size_medium": "0.7",
+        "size_big": "0.1",
+        "length": "0.31",
+        "length_var": "0.0025",
+    }
+    assert (rows[1]["id"], rows[1]["size"], rows[1]["size_p"]) == ("3", "big", "0.8")
+    assert rows[1]["cov_xx"] == "0.0001"
+
+
+def test_value_names_with_commas_and_quotes_survive(tmp_path):
+    schema = FieldSchema.model_validate(
+        {"attributes": {"size": {"kind": "discrete", "values": ['tiny, "x"', "mid", "big"]}}}
+    )
+    snap = two_plants(schema)
+    snap = dataclasses.replace(snap, objects=dataclasses.replace(snap.objects, continuous={}))
+    snap.objects.discrete["size"][:] = [[0.8, 0.1, 0.1], [0.1, 0.1, 0.8]]
+    header, rows = read_csv(write_objects_csv(snap, tmp_path / "o.csv"))
+    assert 'size_tiny, "x"' in header
+    assert [r["size"] for r in rows] == ['tiny, "x"', "big"]
+    assert rows[0]['size_tiny, "x"'] == "0.8"
+
+
+def test_without_schema_values_are_numbered(tmp_path):
+    header, rows = read_csv(write_objects_csv(two_plants(None), tmp_path / "o.csv"))
+    assert header[9:14] == ["size", "size_p", "size_0", "size_1", "size_2"]
+    assert [r["size"] for r in rows] == ["1", "2"]
+
+
+def test_schema_and_map_disagreeing_names_the_attribute(tmp_path):
+    with pytest.raises(ValueError, match=r"attribute 'size': the schema has 3 values"):
+        write_objects_csv(two_plants(SIZE_SCHEMA, size_values=2), tmp_path / "o.csv")
+
+
+def test_bad_array_shape_is_named(sample_snapshot, tmp_path):
+    objects = dataclasses.replace(sample_snapshot.objects, interest=np.zeros(3))
+    with pytest.raises(ValueError, match=r"objects.interest has shape \(3,\)"):
+        write_objects_csv(dataclasses.replace(sample_snapshot, objects=objects), tmp_path / "o")
+
+
+def test_empty_map_writes_the_header_only(sample_snapshot, tmp_path):
+    empty = ObjectMap(
+        ids=np.zeros(0, dtype=int),
+        xy=np.zeros((0, 2)),
+        cov=np.zeros((0, 2, 2)),
+        n_meas=np.zeros(0, dtype=int),
+        interest=np.zeros(0),
+        row=np.zeros(0, dtype=int),
+        discrete={"colour": np.zeros((0, 7)), "size": np.zeros((0, 3))},
+        continuous={"length": (np.zeros(0), np.zeros(0))},
+    )
+    path = write_objects_csv(dataclasses.replace(sample_snapshot, objects=empty), tmp_path / "o")
+    header, rows = read_csv(path)
+    assert rows == [] and header[:3] == ["id", "x", "y"] and "size_big" in header
+
+
+def test_trajectory_csv_has_optimised_and_dead_reckoning(sample_snapshot, tmp_path):
+    header, rows = read_csv(write_trajectory_csv(sample_snapshot, tmp_path / "trajectory.csv"))
+    assert header == ["robot", "t", "x", "y", "theta", "source"]
+    n = len(sample_snapshot.trajectories["spot"].t)
+    assert len(rows) == 4 * n
+    assert [(r["robot"], r["source"]) for r in rows[::n]] == [
+        ("spot", "optimised"),
+        ("husky", "optimised"),
+        ("spot", "dead_reckoning"),
+        ("husky", "dead_reckoning"),
+    ]
+    dr = sample_snapshot.dead_reckoning["husky"]
+    got = np.array([[float(r[k]) for k in ("t", "x", "y", "theta")] for r in rows[3 * n :]])
+    np.testing.assert_allclose(got, np.column_stack([dr.t, dr.poses]), rtol=1e-8, atol=1e-12)
+
+
+@pytest.mark.slow
+def test_objects_csv_100k_objects_is_fast(snapshot_factory, tmp_path):
+    big = snapshot_factory(n_rows=100, per_row=1000, surface=False)
+    start = time.perf_counter()
+    write_objects_csv(big, tmp_path / "objects.csv")
+    elapsed = time.perf_counter() - start
+    with open(tmp_path / "objects.csv", encoding="utf-8") as f:
+        assert sum(1 for _ in f) == 100_001
+    assert elapsed < 5.0, f"100,000 objects took {elapsed:.1f} s"
