@@ -6,11 +6,12 @@ from collections.abc import Callable
 
 import numpy as np
 import pytest
-from scipy.ndimage import gaussian_filter
 
-from agrislam.config import COLOURS, SIZES, FieldSchema
+from agrislam.config import COLOURS, SIZES, FieldSchema, SemanticsConfig
 from agrislam.records import Anchor
-from agrislam.semantics.heuristic import InterestSurface
+from agrislam.semantics.continuous import entropy_normalised
+from agrislam.semantics.heuristic import interest as heuristic_h
+from agrislam.semantics.heuristic import interest_surface
 from agrislam.snapshot import MapSnapshot, ObjectMap, RowLines, Trajectory
 
 SAMPLE_SCHEMA = {
@@ -21,6 +22,7 @@ SAMPLE_SCHEMA = {
     }
 }
 SAMPLE_ANCHOR = Anchor(lat=51.4488, lon=5.4905, h=20.0, yaw_deg=30.0)
+SEMANTICS = SemanticsConfig()
 STAGES = ("predict", "associate", "update", "optimise", "maintain")
 
 
@@ -65,7 +67,10 @@ def snapshot_factory() -> Callable[..., MapSnapshot]:
             rng.uniform(1e-4, 4e-3, k),
         )
         n_meas = rng.integers(1, 12, k)
-        interest = np.clip(1.0 - colour.max(axis=1) * size.max(axis=1) + 0.3 / n_meas, 0.0, 1.0)
+        discrete = {"colour": colour, "size": size} if schema else {}
+        continuous = {"length": length} if schema else {}
+        entropies = [entropy_normalised(length[1], 0.6)] if schema else []
+        interest = heuristic_h(n_meas, discrete.values(), entropies, SEMANTICS)  # eq. (2)
         objects = ObjectMap(
             ids=np.arange(100, 100 + k, dtype=np.int64),
             xy=xy,
@@ -73,8 +78,8 @@ def snapshot_factory() -> Callable[..., MapSnapshot]:
             n_meas=n_meas.astype(np.int64),
             interest=interest,
             row=row.astype(np.int64) if rows else np.full(k, -1, dtype=np.int64),
-            discrete={"colour": colour, "size": size} if schema else {},
-            continuous={"length": length} if schema else {},
+            discrete=discrete,
+            continuous=continuous,
         )
 
         trajectories, dead_reckoning = {}, {}
@@ -89,20 +94,7 @@ def snapshot_factory() -> Callable[..., MapSnapshot]:
             dr = np.column_stack([x, y + drift * (1 + i), dr_theta])
             dead_reckoning[robot] = Trajectory(robot, t.copy(), dr)
 
-        interest_surface = None
-        if surface:
-            res = 0.1
-            x0, y0 = xy[:, 0].min() - 0.5, xy[:, 1].min() - 0.5
-            nx = int(np.ceil((xy[:, 0].max() + 0.5 - x0) / res))
-            ny = int(np.ceil((xy[:, 1].max() + 0.5 - y0) / res))
-            # max interest per cell, spread by a Gaussian of 0.25 m (scales to 100k plants)
-            cells = np.zeros((ny, nx))
-            j = ((xy[:, 0] - x0) / res).astype(int)
-            i = ((xy[:, 1] - y0) / res).astype(int)
-            np.maximum.at(cells, (i, j), interest)
-            values = gaussian_filter(cells, sigma=2.5)
-            values *= interest.max() / values.max()
-            interest_surface = InterestSurface(x0, y0, res, values)
+        surface_of_h = interest_surface(xy, interest, SEMANTICS) if surface else None
 
         base = np.array([0.002, 0.010, 0.004, 0.060, 0.001])
         step_times = {
@@ -116,7 +108,7 @@ def snapshot_factory() -> Callable[..., MapSnapshot]:
             dead_reckoning=dead_reckoning,
             anchor=SAMPLE_ANCHOR if anchor else None,
             rows=RowLines(angle=0.0, offsets=np.arange(n_rows, dtype=float)) if rows else None,
-            interest_surface=interest_surface,
+            interest_surface=surface_of_h,
             step_times=step_times,
         )
 
