@@ -1,0 +1,75 @@
+"""Wheel/leg odometry of a simulated robot: the true motion increments with white noise per
+step and a slowly wandering heading bias, and the trajectory dead reckoning makes of them."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from agrislam.geometry.se2 import wrap_angle
+from agrislam.sim.config import OdometryNoise
+
+
+@dataclass(frozen=True, slots=True)
+class OdometryTrack:
+    delta: np.ndarray  # (m-1, 3) measured increments, each in the previous robot frame
+    cov: np.ndarray  # (m-1, 3, 3) the covariance reported with each increment
+    dead_reckoned: np.ndarray  # (m, 3) the increments integrated from the true start
+
+
+def increments(poses: np.ndarray) -> np.ndarray:
+    """p_{k-1}^-1 (+) p_k for consecutive poses (m, 3) -> (m-1, 3)."""
+    d = np.diff(poses[:, :2], axis=0)
+    c, s = np.cos(poses[:-1, 2]), np.sin(poses[:-1, 2])
+    return np.column_stack(
+        [c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1], wrap_angle(np.diff(poses[:, 2]))]
+    )
+
+
+def integrate(start: np.ndarray, delta: np.ndarray) -> np.ndarray:
+    """Dead reckoning: start (+) delta_1 (+) delta_2 ... as poses (m, 3), vectorised."""
+    theta = start[2] + np.concatenate([[0.0], np.cumsum(delta[:, 2])])
+    c, s = np.cos(theta[:-1]), np.sin(theta[:-1])
+    step = np.column_stack([c * delta[:, 0] - s * delta[:, 1], s * delta[:, 0] + c * delta[:, 1]])
+    xy = start[:2] + np.vstack([[0.0, 0.0], np.cumsum(step, axis=0)])
+    return np.column_stack([xy, wrap_angle(theta)])
+
+
+def step_sigma(delta: np.ndarray, noise: OdometryNoise) -> np.ndarray:
+    """Std (m-1, 3) of the white noise on each true increment: a floor plus parts that grow
+    with the distance driven and the angle turned."""
+    ds = np.hypot(delta[:, 0], delta[:, 1])
+    floor = np.asarray(noise.sigma_floor)
+    return np.column_stack(
+        [
+            floor[0] + noise.sigma_x_per_m * ds,
+            floor[1] + noise.sigma_y_per_m * ds,
+            floor[2]
+            + noise.sigma_theta_per_m * ds
+            + noise.sigma_theta_per_rad * np.abs(delta[:, 2]),
+        ]
+    )
+
+
+def heading_bias(t: np.ndarray, noise: OdometryNoise, rng: np.random.Generator) -> np.ndarray:
+    """Yaw-rate bias (rad/s) over each interval of t: a constant drawn per robot plus a random
+    walk (a gyro's bias instability)."""
+    dt = np.diff(t)
+    walk = np.cumsum(rng.normal(0.0, 1.0, len(dt)) * noise.heading_bias_walk * np.sqrt(dt))
+    return rng.normal(0.0, noise.heading_bias_sigma) + walk
+
+
+def noisy_odometry(
+    poses: np.ndarray, t: np.ndarray, noise: OdometryNoise, rng: np.random.Generator
+) -> OdometryTrack:
+    """What the robot's odometry reports while it follows the true poses (m, 3) at times t."""
+    true = increments(poses)
+    sigma = step_sigma(true, noise)
+    measured = true + rng.normal(0.0, 1.0, true.shape) * sigma
+    measured[:, 2] += heading_bias(t, noise, rng) * np.diff(t)
+    measured[:, 2] = wrap_angle(measured[:, 2])
+    cov = np.zeros((len(true), 3, 3))
+    idx = np.arange(3)
+    cov[:, idx, idx] = (noise.report_scale * sigma) ** 2
+    return OdometryTrack(delta=measured, cov=cov, dead_reckoned=integrate(poses[0], measured))
