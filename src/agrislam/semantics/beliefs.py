@@ -124,6 +124,11 @@ class BeliefTable:
         return self._n
 
     @property
+    def capacity(self) -> int:
+        """Rows allocated; doubles when full."""
+        return self._capacity
+
+    @property
     def n_meas(self) -> np.ndarray:
         """Measurements per object (n,), read-only."""
         return _read_only(self._n_meas[: self._n])

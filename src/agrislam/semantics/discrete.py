@@ -24,8 +24,9 @@ def likelihood(value_index: np.ndarray, p: np.ndarray, n_values: int) -> np.ndar
 
 
 def floor_and_normalise(belief: np.ndarray, floor: float) -> np.ndarray:
-    """Lift every probability to at least `floor`, then renormalise each row."""
-    belief = np.maximum(belief, floor)
+    """Normalise each row of non-negative weights, lift every probability to at least
+    `floor`, and renormalise."""
+    belief = np.maximum(belief / belief.sum(axis=-1, keepdims=True), floor)
     return belief / belief.sum(axis=-1, keepdims=True)
 
 
@@ -65,5 +66,4 @@ def fuse(belief_a: np.ndarray, belief_b: np.ndarray, prior: np.ndarray, floor: f
     Each belief is prior x its own likelihoods, so the product counts the prior twice;
     dividing it out once gives prior x all likelihoods.
     """
-    fused = belief_a * belief_b / np.maximum(prior, floor)
-    return floor_and_normalise(fused / fused.sum(axis=-1, keepdims=True), floor)
+    return floor_and_normalise(belief_a * belief_b / np.maximum(prior, floor), floor)

@@ -19,7 +19,8 @@ def _days(dt_s: np.ndarray | float) -> np.ndarray:
 
 def grown_mean(mean: np.ndarray, model: GrowthModel, dt_s: np.ndarray | float) -> np.ndarray:
     """f(x, dt) = l_max - (l_max - x) e^{-alpha dt} (App. B)."""
-    return model.l_max - (model.l_max - mean) * np.exp(-model.rate_per_day * _days(dt_s))
+    # written as x + (l_max - x)(1 - e^{-alpha dt}): exact at dt = 0, accurate for small dt
+    return mean - (model.l_max - mean) * np.expm1(-model.rate_per_day * _days(dt_s))
 
 
 def grown_variance(var: np.ndarray, model: GrowthModel, dt_s: np.ndarray | float) -> np.ndarray:
@@ -30,8 +31,8 @@ def grown_variance(var: np.ndarray, model: GrowthModel, dt_s: np.ndarray | float
     integration makes two steps equal one (dt1 + dt2), so when a lazily updated belief is
     brought forward does not change it.
     """
-    decay2 = np.exp(-2.0 * model.rate_per_day * _days(dt_s))
-    return decay2 * var + model.variance_per_day * (1.0 - decay2) / (2.0 * model.rate_per_day)
+    grown = -np.expm1(-2.0 * model.rate_per_day * _days(dt_s))  # 1 - e^{-2 alpha dt}
+    return (1.0 - grown) * var + model.variance_per_day * grown / (2.0 * model.rate_per_day)
 
 
 def transition_matrices(n: int, model: GrowthModel, dt_s: np.ndarray) -> np.ndarray:
