@@ -56,10 +56,11 @@ def _occurrence(local: np.ndarray) -> np.ndarray:
     return occurrence
 
 
-def _rounds(local: np.ndarray) -> list[np.ndarray]:
+def _rounds(local: np.ndarray, repeats: bool) -> list[np.ndarray]:
     """Split entries into rounds in which every object appears at most once, in order, so
-    an object measured twice in one call gets both updates one after the other."""
-    if len(np.unique(local)) == len(local):
+    an object measured twice in one call gets both updates one after the other. `repeats`:
+    whether the call has a repeated id at all (if not, one round)."""
+    if not repeats or len(np.unique(local)) == len(local):
         return [np.arange(len(local))]
     occurrence = _occurrence(local)
     return [np.flatnonzero(occurrence == r) for r in range(int(occurrence.max()) + 1)]
@@ -264,6 +265,33 @@ class BeliefTable:
 
     # ------------------------------------------------------------------------ updates
 
+    def _check_discrete(self, name: str, m: object) -> tuple[float, float]:
+        """(value index, p) of a valid discrete measurement; ValueError saying what is wrong."""
+        if not isinstance(m, DiscreteMeasurement):
+            raise ValueError(f"expected a discrete measurement, got {m!r}")
+        try:
+            index = self._value_index[name].get(m.value)
+        except TypeError:  # an unhashable value
+            index = None
+        if index is None:
+            raise ValueError(f"value {m.value!r} not in {self._discrete_spec[name].values}")
+        p = m.p
+        if not ((type(p) is float or isinstance(p, numbers.Real)) and 0.0 <= p <= 1.0):
+            raise ValueError(f"p = {p!r} is not in [0, 1]")
+        return float(index), float(p)
+
+    @staticmethod
+    def _check_continuous(m: object) -> tuple[float, float]:
+        """(value, variance) of a valid continuous measurement; ValueError otherwise."""
+        if not isinstance(m, ContinuousMeasurement):
+            raise ValueError(f"expected a continuous measurement, got {m!r}")
+        value, var = m.value, m.var
+        if not ((type(value) is float or isinstance(value, numbers.Real)) and math.isfinite(value)):
+            raise ValueError(f"value {value!r} is not a finite number")
+        if not ((type(var) is float or isinstance(var, numbers.Real)) and 0.0 <= var < math.inf):
+            raise ValueError(f"variance {var!r} is not a finite number >= 0")
+        return float(value), float(var)
+
     def _validate(
         self, ids: np.ndarray, measurements: Sequence[Mapping[str, Measurement]]
     ) -> dict[str, _Collected]:
@@ -271,40 +299,22 @@ class BeliefTable:
         collected: dict[str, _Collected] = {}
         for k, mapping in enumerate(measurements):
             for name, m in mapping.items():
-                where = f"object {int(ids[k])}, attribute {name!r}"
-                if name in self._value_index:
-                    if not isinstance(m, DiscreteMeasurement):
-                        raise BeliefInputError(
-                            f"{where}: expected a discrete measurement, got {m!r}"
+                try:
+                    if name in self._value_index:
+                        value, spread = self._check_discrete(name, m)
+                    elif name in self._continuous_spec:
+                        value, spread = self._check_continuous(m)
+                    else:
+                        known = sorted(self._value_index) + sorted(self._continuous_spec)
+                        raise ValueError(
+                            f"unknown attribute (the schema has: {', '.join(known) or 'none'})"
                         )
-                    try:
-                        index = self._value_index[name].get(m.value)
-                    except TypeError:
-                        index = None
-                    if index is None:
-                        values = self._discrete_spec[name].values
-                        raise BeliefInputError(f"{where}: value {m.value!r} not in {values}")
-                    if not (isinstance(m.p, numbers.Real) and 0.0 <= m.p <= 1.0):
-                        raise BeliefInputError(f"{where}: p = {m.p!r} is not in [0, 1]")
-                    value, spread = float(index), float(m.p)
-                elif name in self._continuous_spec:
-                    if not isinstance(m, ContinuousMeasurement):
-                        raise BeliefInputError(
-                            f"{where}: expected a continuous measurement, got {m!r}"
-                        )
-                    if not (isinstance(m.value, numbers.Real) and math.isfinite(m.value)):
-                        raise BeliefInputError(f"{where}: value {m.value!r} is not a finite number")
-                    if not (isinstance(m.var, numbers.Real) and 0.0 <= m.var < math.inf):
-                        raise BeliefInputError(
-                            f"{where}: variance {m.var!r} is not a finite number >= 0"
-                        )
-                    value, spread = float(m.value), float(m.var)
-                else:
-                    known = ", ".join(sorted(self._value_index) + sorted(self._continuous_spec))
-                    raise BeliefInputError(
-                        f"{where}: unknown attribute (the schema has: {known or 'none'})"
-                    )
-                group = collected.setdefault(name, _Collected([], [], []))
+                except ValueError as err:
+                    where = f"object {int(ids[k])}, attribute {name!r}"
+                    raise BeliefInputError(f"{where}: {err}") from None
+                group = collected.get(name)
+                if group is None:
+                    group = collected[name] = _Collected([], [], [])
                 group.rows.append(k)
                 group.values.append(value)
                 group.spread.append(spread)
@@ -334,6 +344,7 @@ class BeliefTable:
         collected = self._validate(ids, measurements)
 
         unique_ids, position = np.unique(ids, return_inverse=True)
+        repeats = len(unique_ids) < len(ids)
         beliefs = self._all_discrete_at(unique_ids, t)
         gaussians = self._all_continuous_at(unique_ids, t)
         applied, ignored = {}, {}
@@ -346,12 +357,12 @@ class BeliefTable:
                 ignored[name] = int(skip.sum())
                 local, values, spread = local[~skip], values[~skip].astype(np.int64), spread[~skip]
                 belief = beliefs[name]
-                for r in _rounds(local):
+                for r in _rounds(local, repeats):
                     rows = local[r]
                     belief[rows] = discrete.bayes_update(belief[rows], values[r], spread[r], floor)
             else:
                 mean, var = gaussians[name]
-                for r in _rounds(local):
+                for r in _rounds(local, repeats):
                     rows = local[r]
                     mean[rows], var[rows] = continuous.kalman_update(
                         mean[rows], var[rows], values[r], spread[r]
