@@ -1,0 +1,183 @@
+"""The field simulator as a source: the same records a recorded survey log yields (Meta,
+Odometry, Detections, TruthPose, TruthObject), so the pipeline cannot tell them apart."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from agrislam.config import SECONDS_PER_DAY
+from agrislam.records import (
+    Anchor,
+    Detections,
+    FieldPrior,
+    Meta,
+    Odometry,
+    Record,
+    RobotStart,
+    TruthPose,
+)
+from agrislam.sim.config import SimConfig
+from agrislam.sim.detector import Detector
+from agrislam.sim.field import Field, make_field
+from agrislam.sim.odometry import OdometryTrack, integrate, noisy_odometry
+from agrislam.sim.path import SurveyPath, frame_times, survey_path
+from agrislam.sources.jsonl import write_log
+
+# record kinds at one time stamp, in the order they are written
+_TRUTH, _ODOM, _FRAME = 0, 1, 2
+# independent random streams, so changing one part of the config leaves the others alone
+_FIELD, _ODOMETRY, _DETECTOR = 11, 12, 13
+
+
+@dataclass(frozen=True, slots=True)
+class RobotSurvey:
+    """One robot's drive on one survey day: truth at the odometry and frame times."""
+
+    name: str
+    path: SurveyPath
+    speed: float
+    t0: float  # start of the day's survey, s
+    t_odom: np.ndarray  # (m,) odometry record times
+    poses_odom: np.ndarray  # (m, 3) true poses there
+    odometry: OdometryTrack
+    t_frames: np.ndarray  # (f,) camera frame times
+    poses_frames: np.ndarray  # (f, 3) true poses there
+
+    def true_pose(self, t: float) -> np.ndarray:
+        return self.path.sample(np.array([t - self.t0]), self.speed)[0]
+
+
+class Simulator:
+    """`Simulator(SimConfig()).records()` is the paper's default 400-plant survey."""
+
+    def __init__(self, cfg: SimConfig | None = None) -> None:
+        self.cfg = cfg or SimConfig()
+        self.schema = self.cfg.field_schema()
+        self.field = make_field(self.cfg, self._rng(_FIELD))
+        self.paths: list[SurveyPath] = [
+            survey_path(self.field, self.cfg, k) for k in range(self.cfg.path.n_robots)
+        ]
+        self.days = list(self.cfg.growth.survey_days)
+
+    def _rng(self, *key: int) -> np.random.Generator:
+        return np.random.default_rng([self.cfg.seed, *key])
+
+    def robot_names(self, day: int | None = None) -> list[str]:
+        """r1, r2, ...; in a stream of several survey days each day's robots are new ones
+        (r1_d0, r1_d1, ...), each with its own start pose."""
+        base = [f"r{k + 1}" for k in range(self.cfg.path.n_robots)]
+        return base if day is None else [f"{b}_d{day}" for b in base]
+
+    def field_on(self, day: int) -> Field:
+        """The truth on survey day `day` (index into survey_days): grown since the first."""
+        return self.field.grown(self.days[day] - self.days[0])
+
+    def survey(self, day: int, robot: int, name: str | None = None) -> RobotSurvey:
+        cfg = self.cfg
+        path = self.paths[robot]
+        t0 = self.days[day] * SECONDS_PER_DAY
+        duration = path.duration(cfg.path.speed)
+        t_frames = frame_times(duration, cfg.path.frame_rate_hz)
+        t_odom = t_frames
+        if cfg.path.odom_rate_hz is not None:
+            t_odom = frame_times(duration, cfg.path.odom_rate_hz)
+            if t_odom[-1] < t_frames[-1]:  # odometry must cover the last frame
+                t_odom = np.append(t_odom, t_frames[-1])
+        poses_odom = path.sample(t_odom, cfg.path.speed)
+        track = noisy_odometry(poses_odom, t_odom, cfg.odometry, self._rng(_ODOMETRY, day, robot))
+        return RobotSurvey(
+            name=name or self.robot_names()[robot],
+            path=path,
+            speed=cfg.path.speed,
+            t0=t0,
+            t_odom=t0 + t_odom,
+            poses_odom=poses_odom,
+            odometry=track,
+            t_frames=t0 + t_frames,
+            poses_frames=path.sample(t_frames, cfg.path.speed),
+        )
+
+    def meta(self, names: list[str], days: list[int]) -> Meta:
+        cfg = self.cfg
+        sigma = np.asarray(cfg.path.start_sigma, float)
+        robots = {
+            name: RobotStart(pose=self.paths[k].at_distance(0.0)[0], sigma=sigma)
+            for name, k in zip(
+                names, [k for _ in days for k in range(cfg.path.n_robots)], strict=True
+            )
+        }
+        anchor = None if cfg.anchor is None else Anchor(**cfg.anchor.model_dump())
+        prior = FieldPrior(
+            row_spacing=cfg.field.row_spacing,
+            min_plant_distance=cfg.field.plant_spacing[0],
+            row_angle_deg=cfg.field.row_angle_deg if cfg.announce_row_angle else None,
+        )
+        return Meta(version=1, schema=self.schema, robots=robots, anchor=anchor, field=prior)
+
+    def records(self) -> Iterator[Record]:
+        """Every survey day in one stream: one meta, then per day the truth of that day and
+        the robots' records in time order."""
+        many = len(self.days) > 1
+        names = {d: self.robot_names(d if many else None) for d in range(len(self.days))}
+        yield self.meta([n for d in names for n in names[d]], list(range(len(self.days))))
+        for d in range(len(self.days)):
+            yield from self._day(d, names[d])
+
+    def day_records(self, day: int) -> Iterator[Record]:
+        """One survey day as a log of its own (its own meta; robots named r1, r2, ...)."""
+        names = self.robot_names()
+        yield self.meta(names, [day])
+        yield from self._day(day, names)
+
+    def _day(self, day: int, names: list[str]) -> Iterator[Record]:
+        field = self.field_on(day)
+        yield from field.truth_objects()
+        detector = Detector(field, self.cfg.detector)
+        surveys = [self.survey(day, k, name) for k, name in enumerate(names)]
+        rngs = [self._rng(_DETECTOR, day, k) for k in range(len(surveys))]
+        # (time, robot, kind, index) of every record of the day, sorted
+        events = []
+        for k, sv in enumerate(surveys):
+            t_truth = np.union1d(sv.t_odom, sv.t_frames)
+            for kind, times in ((_TRUTH, t_truth), (_ODOM, sv.t_odom), (_FRAME, sv.t_frames)):
+                events.append(
+                    np.column_stack(
+                        [
+                            times,
+                            np.full(len(times), k),
+                            np.full(len(times), kind),
+                            np.arange(len(times)),
+                        ]
+                    )
+                )
+        ev = np.vstack(events)
+        ev = ev[np.lexsort((ev[:, 2], ev[:, 1], ev[:, 0]))]
+        odom_pose = [integrate(np.zeros(3), sv.odometry.delta) for sv in surveys]
+        for t, k, kind, i in ev:
+            sv, k, i = surveys[int(k)], int(k), int(i)
+            if kind == _TRUTH:
+                yield TruthPose(t=float(t), robot=sv.name, pose=sv.true_pose(float(t)))
+            elif kind == _ODOM:
+                yield self._odometry(sv, i, odom_pose[k][i])
+            else:
+                dets = detector.frame(sv.poses_frames[i], rngs[k])
+                yield Detections(t=float(t), robot=sv.name, objects=dets, sensor="front")
+
+    def _odometry(self, sv: RobotSurvey, i: int, pose: np.ndarray) -> Odometry:
+        """The first record of a robot marks where its timeline starts: zero motion, zero cov."""
+        if i == 0:
+            delta, cov = np.zeros(3), np.zeros((3, 3))
+        else:
+            delta, cov = sv.odometry.delta[i - 1], sv.odometry.cov[i - 1]
+        if self.cfg.odometry.kind == "pose":
+            return Odometry(t=float(sv.t_odom[i]), robot=sv.name, pose=pose, cov=cov)
+        return Odometry(t=float(sv.t_odom[i]), robot=sv.name, delta=delta, cov=cov)
+
+
+def record_simulation(cfg: SimConfig | None, path: str | Path) -> int:
+    """Write a simulated survey with its truth as a JSONL survey log; returns the line count."""
+    return write_log(Simulator(cfg).records(), path)

@@ -1,0 +1,67 @@
+import numpy as np
+import pytest
+
+from agrislam.geometry.se2 import compose
+from agrislam.sim.config import OdometryNoise, SimConfig
+from agrislam.sim.field import make_field
+from agrislam.sim.odometry import increments, integrate, noisy_odometry, step_sigma
+from agrislam.sim.path import lawnmower
+
+
+def test_increments_and_integration_are_inverse():
+    poses = np.array([[1.0, 2.0, 0.3], [1.5, 2.4, 0.9], [1.2, 3.0, 2.5], [0.0, 3.1, -3.0]])
+    d = increments(poses)
+    np.testing.assert_allclose(compose(poses[0], d[0]), poses[1], atol=1e-12)
+    np.testing.assert_allclose(integrate(poses[0], d), poses, atol=1e-12)
+
+
+def test_step_sigma_by_hand():
+    noise = OdometryNoise()
+    # 0.2 m forward while turning 0.4 rad
+    s = step_sigma(np.array([[0.2, 0.0, 0.4]]), noise)[0]
+    np.testing.assert_allclose(
+        s, [1e-4 + 0.02 * 0.2, 1e-4 + 0.01 * 0.2, 1e-4 + 0.005 * 0.2 + 0.01 * 0.4]
+    )
+
+
+def test_noise_matches_the_reported_covariance_without_bias():
+    noise = OdometryNoise(heading_bias_sigma=0.0, heading_bias_walk=0.0)
+    t = np.arange(4001) * 0.5
+    poses = np.column_stack([0.2 * np.arange(4001), np.zeros(4001), np.zeros(4001)])
+    track = noisy_odometry(poses, t, noise, np.random.default_rng(3))
+    err = track.delta - increments(poses)
+    z = err / np.sqrt(np.diagonal(track.cov, axis1=1, axis2=2))
+    np.testing.assert_allclose(z.std(axis=0), 1.0, atol=0.05)
+    np.testing.assert_allclose(z.mean(axis=0), 0.0, atol=0.06)
+
+
+def test_heading_bias_turns_the_dead_reckoning_steadily():
+    noise = OdometryNoise(
+        sigma_x_per_m=0,
+        sigma_y_per_m=0,
+        sigma_theta_per_m=0,
+        sigma_theta_per_rad=0,
+        sigma_floor=(0, 0, 0),
+        heading_bias_sigma=1e-3,
+        heading_bias_walk=0.0,
+    )
+    t = np.arange(101) * 1.0
+    poses = np.column_stack([0.4 * np.arange(101), np.zeros(101), np.zeros(101)])
+    track = noisy_odometry(poses, t, noise, np.random.default_rng(0))
+    rate = np.diff(track.delta[:, 2])
+    np.testing.assert_allclose(rate, 0.0, atol=1e-15)  # a constant yaw-rate bias
+    assert track.dead_reckoned[-1, 2] == pytest.approx(100 * track.delta[0, 2])
+
+
+def test_default_survey_drifts_about_half_a_metre():
+    """The paper's odometry-noise run: RMS 0.503 m without optimisation (sec. 3.1.2)."""
+    cfg = SimConfig()
+    field = make_field(cfg, np.random.default_rng(1))
+    poses, t = lawnmower(field, cfg)
+    rms = []
+    for seed in range(40):
+        track = noisy_odometry(poses, t, cfg.odometry, np.random.default_rng(seed))
+        err = np.linalg.norm(track.dead_reckoned[:, :2] - poses[:, :2], axis=1)
+        rms.append(np.sqrt(np.mean(err**2)))
+    assert 0.35 <= np.median(rms) <= 0.65
+    assert track.dead_reckoned[0] == pytest.approx(poses[0])
