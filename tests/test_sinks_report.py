@@ -1,0 +1,143 @@
+"""report.png: a real PNG whose pixels follow the data, and robustness to missing parts."""
+
+from __future__ import annotations
+
+import dataclasses
+import struct
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from matplotlib.colors import to_rgba
+from matplotlib.image import imread
+
+from agrislam.config import COLOURS, FieldSchema
+from agrislam.sinks.report import _headline, value_colours, write_attribute_maps, write_report
+from agrislam.snapshot import MapSnapshot, ObjectMap
+
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+LOW_DPI = 50  # enough to check pixels, twice as fast to draw
+
+
+def png_size(path: Path) -> tuple[int, int]:
+    """Width and height from the IHDR chunk."""
+    data = path.read_bytes()
+    assert data[:8] == PNG_SIGNATURE and data[12:16] == b"IHDR"
+    return struct.unpack(">II", data[16:24])
+
+
+def one_colour(snapshot: MapSnapshot, colour: str) -> MapSnapshot:
+    """Every plant certainly `colour`, and nothing else to draw in colour."""
+    belief = np.full((len(snapshot.objects), len(COLOURS)), 1e-9)
+    belief[:, COLOURS.index(colour)] = 1.0
+    schema = FieldSchema.model_validate(
+        {"attributes": {"colour": {"kind": "discrete", "values": COLOURS}}}
+    )
+    objects = dataclasses.replace(snapshot.objects, discrete={"colour": belief}, continuous={})
+    return dataclasses.replace(snapshot, schema=schema, objects=objects)
+
+
+def count_near(path: Path, rgb: tuple[float, float, float], tol: float = 0.12) -> int:
+    image = imread(path)[..., :3]
+    return int(np.sum(np.all(np.abs(image - np.asarray(rgb)) < tol, axis=-1)))
+
+
+def test_report_is_a_sizeable_png(sample_snapshot, tmp_path):
+    truth = {r: dataclasses.replace(t) for r, t in sample_snapshot.trajectories.items()}
+    metrics = {"plants": {"mapped": 30, "missed": 0}, "size_accuracy": 0.967, "name": "demo"}
+    path = write_report(sample_snapshot, tmp_path / "report.png", metrics=metrics, truth=truth)
+    width, height = png_size(path)
+    assert width >= 1200 and height >= 700
+    assert path.stat().st_size > 50_000
+
+
+def test_report_pixels_follow_the_data(sample_snapshot, tmp_path):
+    yellow = write_report(one_colour(sample_snapshot, "yellow"), tmp_path / "y.png", dpi=LOW_DPI)
+    blue = write_report(one_colour(sample_snapshot, "blue"), tmp_path / "b.png", dpi=LOW_DPI)
+    # the colour attribute is drawn in the plants' actual colours
+    assert count_near(yellow, (1.0, 1.0, 0.0)) > 250
+    assert count_near(blue, (1.0, 1.0, 0.0)) < 30
+    assert count_near(blue, (0.0, 0.0, 1.0)) > 250
+
+
+@pytest.mark.parametrize(
+    "parts",
+    [
+        {"schema": False, "anchor": False, "rows": False, "surface": False},
+        # a long strip of a field (one column of panels), more steps than plotted points
+        {"n_rows": 4, "per_row": 100, "n_steps": 1500, "surface": False},
+    ],
+)
+def test_report_copes_with_missing_parts(snapshot_factory, parts, tmp_path):
+    path = write_report(snapshot_factory(**parts), tmp_path / "report.png", dpi=LOW_DPI)
+    assert png_size(path)[0] > 300
+
+
+def test_report_of_an_empty_map_without_timings(sample_snapshot, tmp_path):
+    empty = ObjectMap(
+        ids=np.zeros(0, dtype=int),
+        xy=np.zeros((0, 2)),
+        cov=np.zeros((0, 2, 2)),
+        n_meas=np.zeros(0, dtype=int),
+        interest=np.zeros(0),
+        row=np.zeros(0, dtype=int),
+    )
+    snap = MapSnapshot(schema=None, objects=empty, trajectories={}, dead_reckoning={})
+    assert png_size(write_report(snap, tmp_path / "empty.png", dpi=LOW_DPI))[0] > 300
+    snap = dataclasses.replace(sample_snapshot, objects=empty, interest_surface=None)
+    assert png_size(write_report(snap, tmp_path / "no_plants.png", dpi=LOW_DPI))[0] > 300
+
+
+def test_step_times_of_unequal_length_are_rejected(sample_snapshot, tmp_path):
+    times = dict(sample_snapshot.step_times, maintain=np.zeros(3))
+    with pytest.raises(ValueError, match="step_times: stages have different numbers of steps"):
+        write_report(dataclasses.replace(sample_snapshot, step_times=times), tmp_path / "r.png")
+
+
+def test_attribute_maps_one_panel_each(sample_snapshot, snapshot_factory, tmp_path):
+    three = write_attribute_maps(sample_snapshot, tmp_path / "attributes.png", dpi=LOW_DPI)
+    plain = snapshot_factory(schema=False)
+    none = write_attribute_maps(plain, tmp_path / "plain.png", dpi=LOW_DPI)
+    assert png_size(three)[0] > png_size(none)[0]  # three panels side by side against one
+
+
+def test_value_colours(sample_snapshot):
+    np.testing.assert_allclose(
+        value_colours("colour", COLOURS, sample_snapshot)[[0, 6]],
+        [to_rgba("blue"), to_rgba("yellow")],
+    )
+    health = value_colours("health", ["healthy", "diseased"], sample_snapshot)
+    np.testing.assert_allclose(health, [to_rgba("tab:green"), to_rgba("tab:red")])
+    sizes = value_colours("size", ["small", "medium", "big"], sample_snapshot)
+    brightness = sizes[:, :3].sum(axis=1)
+    assert np.all(np.diff(brightness) < 0)  # small light, big dark
+    types = value_colours("type", ["A", "B"], sample_snapshot)
+    np.testing.assert_allclose(types, [to_rgba("tab:blue"), to_rgba("tab:orange")])
+
+
+def test_headline_puts_the_farmers_numbers_first():
+    lines = _headline(
+        {
+            "timing": {"p50_ms": 12.5, "p95_ms": 30.25},
+            "objects": {"mapped": 398, "duplicates": 2},
+            "semantics": {"size": {"accuracy": 0.97531}},
+            "trajectory_rms_m": 0.0812,
+            "note": [1, 2],
+        }
+    )
+    assert lines[0] == (
+        "objects.mapped: 398   ·   objects.duplicates: 2   ·   "
+        "semantics.size.accuracy: 0.975   ·   trajectory_rms_m: 0.0812"
+    )
+    assert lines[1] == "timing.p50_ms: 12.5   ·   timing.p95_ms: 30.2"
+
+
+@pytest.mark.slow
+def test_report_of_100k_plants_and_10k_steps(snapshot_factory, tmp_path):
+    big = snapshot_factory(n_rows=100, per_row=1000, n_steps=10_000)
+    start = time.perf_counter()
+    path = write_report(big, tmp_path / "report.png")
+    elapsed = time.perf_counter() - start
+    assert png_size(path)[0] > 1000
+    assert elapsed < 20.0, f"report of 100,000 plants took {elapsed:.1f} s"
