@@ -1,0 +1,422 @@
+"""Scoring a map against ground truth: which plants were mapped, missed, duplicated or
+invented, how far off they are, how right their attributes are, how clean the data
+association was, and how well the trajectory was recovered with and without optimisation.
+
+Like evo, alignment is explicit: with `align=True` the estimate is first moved onto the
+truth by the least-squares rigid 2D transform, and the metrics say so."""
+
+from __future__ import annotations
+
+import json
+import math
+from collections import Counter
+from collections.abc import Iterable, Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
+
+from agrislam.records import TruthObject, TruthPose
+from agrislam.snapshot import MapSnapshot, Trajectory
+
+# ------------------------------------------------------------------------------ geometry
+
+
+def rigid_fit(src: np.ndarray, dst: np.ndarray) -> tuple[float, np.ndarray]:
+    """Rotation angle and translation minimising sum |R src + t - dst|^2 (2D Kabsch)."""
+    cs, cd = src.mean(axis=0), dst.mean(axis=0)
+    h = (src - cs).T @ (dst - cd)
+    angle = math.atan2(h[0, 1] - h[1, 0], h[0, 0] + h[1, 1])
+    return angle, cd - _rot(angle) @ cs
+
+
+def _rot(angle: float) -> np.ndarray:
+    c, s = math.cos(angle), math.sin(angle)
+    return np.array([[c, -s], [s, c]])
+
+
+def _wrap(a: np.ndarray) -> np.ndarray:
+    return (a + np.pi) % (2 * np.pi) - np.pi
+
+
+def _transform_poses(poses: np.ndarray, angle: float, t: np.ndarray) -> np.ndarray:
+    out = poses.copy()
+    out[:, :2] = poses[:, :2] @ _rot(angle).T + t
+    out[:, 2] = _wrap(poses[:, 2] + angle)
+    return out
+
+
+def match_objects(
+    est: np.ndarray, truth: np.ndarray, radius: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """One-to-one assignment of estimates to truths within `radius`: the most pairs, and of
+    those the smallest total distance (linear_sum_assignment per cluster of candidates)."""
+    est, truth = est.reshape(-1, 2), truth.reshape(-1, 2)
+    if len(est) == 0 or len(truth) == 0:
+        return np.zeros(0, int), np.zeros(0, int)
+    dist = cKDTree(est).sparse_distance_matrix(cKDTree(truth), radius, output_type="coo_matrix")
+    e_idx, t_idx, d = dist.row, dist.col, dist.data
+    if len(d) == 0:
+        return np.zeros(0, int), np.zeros(0, int)
+    n_e = len(est)
+    graph = coo_matrix((np.ones(len(d)), (e_idx, n_e + t_idx)), shape=(n_e + len(truth),) * 2)
+    _, label = connected_components(graph, directed=False)
+    comp = label[e_idx]
+    order = np.argsort(comp, kind="stable")
+    bounds = np.flatnonzero(np.diff(comp[order])) + 1
+    out_e, out_t = [], []
+    for edges in np.split(order, bounds):
+        ce, ct, cd = e_idx[edges], t_idx[edges], d[edges]
+        if len(edges) == 1:
+            out_e.append(ce)
+            out_t.append(ct)
+            continue
+        ue, ie = np.unique(ce, return_inverse=True)
+        ut, it = np.unique(ct, return_inverse=True)
+        big = radius * (len(edges) + 1) + 1.0  # a forbidden pair costs more than all allowed
+        cost = np.full((len(ue), len(ut)), big)
+        cost[ie, it] = cd
+        r, c = linear_sum_assignment(cost)
+        ok = cost[r, c] < big
+        out_e.append(ue[r[ok]])
+        out_t.append(ut[c[ok]])
+    return np.concatenate(out_e).astype(int), np.concatenate(out_t).astype(int)
+
+
+# ------------------------------------------------------------------------------ metrics
+
+
+def _rms(x: np.ndarray) -> float | None:
+    return float(np.sqrt(np.mean(np.square(x)))) if len(x) else None
+
+
+def _truth_tracks(poses: Iterable[TruthPose]) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    by_robot: dict[str, list[TruthPose]] = {}
+    for p in poses:
+        by_robot.setdefault(p.robot, []).append(p)
+    out = {}
+    for robot, ps in by_robot.items():
+        t = np.array([p.t for p in ps])
+        order = np.argsort(t, kind="stable")
+        out[robot] = (t[order], np.array([p.pose for p in ps])[order])
+    return out
+
+
+def truth_at(t_truth: np.ndarray, truth: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """True poses at times t, linearly interpolated (the heading unwrapped first)."""
+    theta = np.unwrap(truth[:, 2])
+    return np.column_stack(
+        [
+            np.interp(t, t_truth, truth[:, 0]),
+            np.interp(t, t_truth, truth[:, 1]),
+            _wrap(np.interp(t, t_truth, theta)),
+        ]
+    )
+
+
+def _paired_poses(
+    est: Trajectory, track: tuple[np.ndarray, np.ndarray]
+) -> tuple[np.ndarray, np.ndarray]:
+    """Estimated poses inside the truth's time span and the true poses at their times."""
+    t_truth, truth = track
+    inside = (est.t >= t_truth[0]) & (est.t <= t_truth[-1])
+    return est.poses[inside], truth_at(t_truth, truth, est.t[inside])
+
+
+def trajectory_errors(
+    trajectories: Mapping[str, Trajectory], tracks: Mapping[str, tuple[np.ndarray, np.ndarray]]
+) -> dict[str, Any]:
+    """RMS position and heading error over all robots, and per robot."""
+    per_robot, pos, head = {}, [], []
+    for robot, est in sorted(trajectories.items()):
+        if robot not in tracks or len(est.t) == 0:
+            continue
+        e, t = _paired_poses(est, tracks[robot])
+        dp, dh = np.linalg.norm(e[:, :2] - t[:, :2], axis=1), _wrap(e[:, 2] - t[:, 2])
+        per_robot[robot] = {"rms_position": _rms(dp), "rms_heading": _rms(dh), "n": len(dp)}
+        pos.append(dp)
+        head.append(dh)
+    dp = np.concatenate(pos) if pos else np.zeros(0)
+    dh = np.concatenate(head) if head else np.zeros(0)
+    return {"rms_position": _rms(dp), "rms_heading": _rms(dh), "n": len(dp), "per_robot": per_robot}
+
+
+def association_scores(associations: Sequence[tuple[str | None, int]]) -> dict[str, Any]:
+    """Purity (the share of each object's detections that are of its main plant) and
+    completeness (the share of each plant's detections that went to its main object),
+    weighted by detections; clutter (no truth id) is counted apart."""
+    pairs = [(str(t), int(o)) for t, o in associations if t]
+    counts = Counter(pairs)
+    by_object: dict[int, Counter[str]] = {}
+    by_truth: dict[str, Counter[int]] = {}
+    for (t, o), n in counts.items():
+        by_object.setdefault(o, Counter())[t] = n
+        by_truth.setdefault(t, Counter())[o] = n
+    total = len(pairs)
+    if total == 0:
+        return {"n_detections": len(associations), "n_clutter": len(associations)}
+    return {
+        "n_detections": len(associations),
+        "n_clutter": len(associations) - total,
+        "purity": sum(max(c.values()) for c in by_object.values()) / total,
+        "completeness": sum(max(c.values()) for c in by_truth.values()) / total,
+        "truths": len(by_truth),
+        "truths_split": sum(len(c) > 1 for c in by_truth.values()),
+        "objects_mixed": sum(len(c) > 1 for c in by_object.values()),
+        "truths_one_object_fraction": sum(len(c) == 1 for c in by_truth.values()) / len(by_truth),
+    }
+
+
+def _attribute_scores(
+    snapshot: MapSnapshot, matched_est: np.ndarray, truths: list[TruthObject]
+) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    schema = snapshot.schema
+    for name, probs in snapshot.objects.discrete.items():
+        values = schema.discrete[name].values if schema and name in schema.discrete else None
+        hits = [
+            values[int(np.argmax(probs[e]))] == t.attributes[name]
+            for e, t in zip(matched_est, truths, strict=True)
+            if name in t.attributes and values is not None
+        ]
+        out[name] = {"accuracy": float(np.mean(hits)) if hits else None, "n": len(hits)}
+    for name, (mean, _) in snapshot.objects.continuous.items():
+        err = np.array(
+            [
+                mean[e] - float(t.attributes[name])
+                for e, t in zip(matched_est, truths, strict=True)
+                if name in t.attributes
+            ]
+        )
+        out[name] = {
+            "rms": _rms(err),
+            "bias": float(err.mean()) if len(err) else None,
+            "n": len(err),
+        }
+    return out
+
+
+def _timings(step_times: Mapping[str, np.ndarray]) -> dict[str, Any]:
+    out = {}
+    for stage, times in step_times.items():
+        x = np.asarray(times, float)
+        if len(x):
+            out[stage] = {
+                "p50_s": float(np.percentile(x, 50)),
+                "p95_s": float(np.percentile(x, 95)),
+                "max_s": float(x.max()),
+                "total_s": float(x.sum()),
+                "n": len(x),
+            }
+    return out
+
+
+def default_radius(truth_xy: np.ndarray, min_plant_distance: float | None = None) -> float:
+    """Half the minimum plant distance; without one given, the 5th percentile of the true
+    nearest-neighbour distances stands in for it (robust to a few doubled plants)."""
+    if min_plant_distance is None:
+        if len(truth_xy) < 2:
+            return 0.2
+        nn = cKDTree(truth_xy).query(truth_xy, k=2)[0][:, 1]
+        min_plant_distance = float(np.percentile(nn, 5))
+    return 0.5 * min_plant_distance
+
+
+def _alignment_pairs(
+    snapshot: MapSnapshot, tracks: Mapping[str, tuple[np.ndarray, np.ndarray]]
+) -> tuple[np.ndarray, np.ndarray]:
+    src, dst = [], []
+    for robot, est in snapshot.trajectories.items():
+        if robot in tracks and len(est.t):
+            e, t = _paired_poses(est, tracks[robot])
+            src.append(e[:, :2])
+            dst.append(t[:, :2])
+    if not src:
+        return np.zeros((0, 2)), np.zeros((0, 2))
+    return np.vstack(src), np.vstack(dst)
+
+
+def _icp(est: np.ndarray, truth: np.ndarray, radius: float) -> tuple[float, np.ndarray, int]:
+    """Align objects to truth without a trajectory: nearest neighbours with a shrinking gate."""
+    angle, t = 0.0, np.zeros(2)
+    tree = cKDTree(truth)
+    n = 0
+    for gate in np.geomspace(max(1.0, 4 * radius), radius, 15):
+        moved = est @ _rot(angle).T + t
+        d, j = tree.query(moved, distance_upper_bound=gate)
+        ok = np.isfinite(d)
+        if ok.sum() < 3:
+            break
+        angle, t = rigid_fit(est[ok], truth[j[ok]])
+        n = int(ok.sum())
+    return angle, t, n
+
+
+# ------------------------------------------------------------------------------ entry
+
+
+def evaluate(
+    snapshot: MapSnapshot,
+    truth_objects: Iterable[TruthObject],
+    truth_poses: Iterable[TruthPose] = (),
+    associations: Sequence[tuple[str | None, int]] | None = None,
+    *,
+    radius: float | None = None,
+    min_plant_distance: float | None = None,
+    align: bool = False,
+) -> dict[str, Any]:
+    """Every metric of the map against the truth, as a JSON-ready dict.
+
+    `associations`: (truth_id, final object id) of each detection. A later TruthObject with
+    an id seen before replaces it (a later survey day's truth). `radius`: matching radius,
+    default half the minimum plant distance."""
+    latest = {t.id: t for t in truth_objects}
+    truths = list(latest.values())
+    truth_xy = np.array([t.xy for t in truths], float).reshape(-1, 2)
+    tracks = _truth_tracks(truth_poses)
+    radius = radius if radius is not None else default_radius(truth_xy, min_plant_distance)
+    est_xy = np.asarray(snapshot.objects.xy, float).reshape(-1, 2)
+    optimised = dict(snapshot.trajectories)
+    dead = dict(snapshot.dead_reckoning)
+
+    alignment: dict[str, Any] = {"applied": False}
+    if align:
+        src, dst = _alignment_pairs(snapshot, tracks)
+        if len(src) >= 2:
+            angle, shift = rigid_fit(src, dst)
+            source, n_pairs = "trajectory", len(src)
+        else:
+            angle, shift, n_pairs = _icp(est_xy, truth_xy, radius)
+            source = "objects"
+        alignment = {
+            "applied": True,
+            "source": source,
+            "rotation_deg": math.degrees(angle),
+            "translation": [float(shift[0]), float(shift[1])],
+            "n_pairs": n_pairs,
+        }
+        est_xy = est_xy @ _rot(angle).T + shift
+        optimised = {
+            r: Trajectory(r, tr.t, _transform_poses(tr.poses, angle, shift))
+            for r, tr in optimised.items()
+        }
+        dead = {
+            r: Trajectory(r, tr.t, _transform_poses(tr.poses, angle, shift))
+            for r, tr in dead.items()
+        }
+
+    ei, ti = match_objects(est_xy, truth_xy, radius)
+    unmatched = np.setdiff1d(np.arange(len(est_xy)), ei)
+    near_truth = np.zeros(len(unmatched), bool)
+    if len(unmatched) and len(truth_xy):
+        near_truth = cKDTree(truth_xy).query(est_xy[unmatched], distance_upper_bound=radius)[0]
+        near_truth = np.isfinite(near_truth)
+    n_truth = len(truths)
+    objects = {
+        "n_truth": n_truth,
+        "n_estimated": len(est_xy),
+        "mapped": len(ti),
+        "missed": n_truth - len(ti),
+        "mapped_fraction": len(ti) / n_truth if n_truth else None,
+        "duplicates": int(near_truth.sum()),
+        "duplicate_fraction": float(near_truth.sum()) / n_truth if n_truth else None,
+        "false_objects": int((~near_truth).sum()),
+        "position_rms": _rms(np.linalg.norm(est_xy[ei] - truth_xy[ti], axis=1)),
+        "match_radius": radius,
+    }
+    metrics: dict[str, Any] = {
+        "objects": objects,
+        "attributes": _attribute_scores(snapshot, ei, [truths[j] for j in ti]),
+        "trajectory": {
+            "optimised": trajectory_errors(optimised, tracks),
+            "dead_reckoning": trajectory_errors(dead, tracks),
+        },
+        "alignment": alignment,
+    }
+    if associations:
+        metrics["association"] = association_scores(associations)
+    if snapshot.step_times:
+        metrics["timings"] = _timings(snapshot.step_times)
+    return metrics
+
+
+def _json_ready(x: Any) -> Any:
+    if isinstance(x, Mapping):
+        return {str(k): _json_ready(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple, np.ndarray)):
+        return [_json_ready(v) for v in x]
+    if isinstance(x, (np.integer,)):
+        return int(x)
+    if isinstance(x, (float, np.floating)):
+        return float(x) if math.isfinite(x) else None
+    return x
+
+
+def write_metrics(metrics: Mapping[str, Any], path: str | Path) -> Path:
+    """metrics.json: the dict of `evaluate`, NaN as null."""
+    path = Path(path)
+    path.write_text(json.dumps(_json_ready(metrics), indent=2, allow_nan=False) + "\n")
+    return path
+
+
+def _fmt(x: Any, unit: str = "", pct: bool = False) -> str:
+    if x is None:
+        return "-"
+    if pct:
+        return f"{100 * x:.1f} %"
+    if isinstance(x, float):
+        return f"{x:.3f}{unit}"
+    return f"{x}{unit}"
+
+
+def print_metrics(metrics: Mapping[str, Any], console: Any = None) -> None:
+    """A small table of the headline numbers on the terminal."""
+    from rich.console import Console
+    from rich.table import Table
+
+    console = console or Console()
+    o = metrics["objects"]
+    table = Table(title="Map against ground truth", show_header=True)
+    table.add_column("metric")
+    table.add_column("value", justify="right")
+    table.add_row(
+        "plants mapped", f"{o['mapped']} / {o['n_truth']} ({_fmt(o['mapped_fraction'], pct=True)})"
+    )
+    table.add_row("missed", str(o["missed"]))
+    table.add_row("duplicates", f"{o['duplicates']} ({_fmt(o['duplicate_fraction'], pct=True)})")
+    table.add_row("false objects", str(o["false_objects"]))
+    table.add_row("object position RMS", _fmt(o["position_rms"], " m"))
+    for name, a in metrics.get("attributes", {}).items():
+        if "accuracy" in a:
+            table.add_row(f"{name} accuracy", _fmt(a["accuracy"], pct=True))
+        else:
+            table.add_row(f"{name} RMS", _fmt(a["rms"], " m"))
+    assoc = metrics.get("association")
+    if assoc and "purity" in assoc:
+        table.add_row("association purity", _fmt(assoc["purity"], pct=True))
+        table.add_row("association completeness", _fmt(assoc["completeness"], pct=True))
+    al = metrics.get("alignment", {})
+    if al.get("applied"):
+        table.add_row(
+            "aligned by",
+            f"{al['rotation_deg']:.2f} deg, "
+            f"({al['translation'][0]:.3f}, {al['translation'][1]:.3f}) m",
+        )
+    console.print(table)
+    traj = metrics.get("trajectory", {})
+    if traj:
+        t = Table(title="Trajectory error (RMS)", show_header=True)
+        t.add_column("")
+        t.add_column("optimised", justify="right")
+        t.add_column("dead reckoning", justify="right")
+        opt, dr = traj["optimised"], traj["dead_reckoning"]
+        t.add_row("position", _fmt(opt["rms_position"], " m"), _fmt(dr["rms_position"], " m"))
+        heading = [
+            None if x is None else math.degrees(x) for x in (opt["rms_heading"], dr["rms_heading"])
+        ]
+        t.add_row("heading", *(_fmt(h, " deg") for h in heading))
+        console.print(t)
