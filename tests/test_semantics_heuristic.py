@@ -147,6 +147,8 @@ def test_surface_bad_requests_name_the_problem():
         interest_surface(np.empty((0, 2)), np.empty(0), CONFIG)
     with pytest.raises(ValueError, match="empty bounds"):
         interest_surface(np.empty((0, 2)), np.empty(0), CONFIG, bounds=(1.0, 0.0, 0.0, 1.0))
+    with pytest.raises(ValueError, match=r"3 positions but h of shape \(2,\)"):
+        interest_surface(np.zeros((3, 2)), np.zeros(2), CONFIG)
     # no objects but bounds: nothing known anywhere
     s = interest_surface(np.empty((0, 2)), np.empty(0), CONFIG, bounds=(0.0, 1.0, 0.0, 1.0))
     assert np.all(s.values == 1.0)

@@ -120,13 +120,16 @@ def interest_surface(
 
     i.e. 1 ("unknown, worth a look") where no object is near, h_k on an isolated object,
     the w-weighted mean of h where objects crowd (sum_k w_k >= 1), and in between a blend
-    of both; always in [0, 1]. The two sums are point splats convolved with a separable
-    Gaussian (cost ~ cells x kernel width, independent of k). Grid: `bounds` (xmin, xmax,
-    ymin, ymax) or the objects plus 3 sigma, cells of config.surface_resolution, coarsened
-    if there would be more than `max_cells`.
+    of both; always in [0, 1]. The two sums are point splats (each object into its nearest
+    cell) convolved with a separable Gaussian cut at 3 sigma: cost ~ cells x kernel width,
+    nearly independent of k. Grid: `bounds` (xmin, xmax, ymin, ymax), objects outside left
+    out, or the objects plus 3 sigma; cells of config.surface_resolution, coarsened if there
+    would be more than `max_cells`. Values are float32.
     """
     xy = np.asarray(xy, dtype=float).reshape(-1, 2)
     h = np.asarray(h, dtype=float)
+    if h.shape != (len(xy),):
+        raise ValueError(f"interest surface: {len(xy)} positions but h of shape {h.shape}")
     sigma = config.surface_sigma
     x0, y0, res, nx, ny = _grid(xy, bounds, config.surface_resolution, 3.0 * sigma, max_cells)
     col, row = (xy[:, 0] - x0) / res - 0.5, (xy[:, 1] - y0) / res - 0.5  # cell-centre coords
