@@ -16,16 +16,22 @@ def test_increments_and_integration_are_inverse():
 
 
 def test_step_sigma_by_hand():
-    noise = OdometryNoise()
+    noise = OdometryNoise(
+        sigma_x_per_m=0.02,
+        sigma_y_per_m=0.01,
+        sigma_theta_per_m=0.005,
+        sigma_theta_per_rad=0.01,
+        sigma_floor=(1e-4, 2e-4, 3e-4),
+    )
     # 0.2 m forward while turning 0.4 rad
     s = step_sigma(np.array([[0.2, 0.0, 0.4]]), noise)[0]
     np.testing.assert_allclose(
-        s, [1e-4 + 0.02 * 0.2, 1e-4 + 0.01 * 0.2, 1e-4 + 0.005 * 0.2 + 0.01 * 0.4]
+        s, [1e-4 + 0.02 * 0.2, 2e-4 + 0.01 * 0.2, 3e-4 + 0.005 * 0.2 + 0.01 * 0.4]
     )
 
 
 def test_noise_matches_the_reported_covariance_without_bias():
-    noise = OdometryNoise(heading_bias_sigma=0.0, heading_bias_walk=0.0)
+    noise = OdometryNoise(heading_bias=0.0, heading_bias_walk=0.0)
     t = np.arange(4001) * 0.5
     poses = np.column_stack([0.2 * np.arange(4001), np.zeros(4001), np.zeros(4001)])
     track = noisy_odometry(poses, t, noise, np.random.default_rng(3))
@@ -42,7 +48,7 @@ def test_heading_bias_turns_the_dead_reckoning_steadily():
         sigma_theta_per_m=0,
         sigma_theta_per_rad=0,
         sigma_floor=(0, 0, 0),
-        heading_bias_sigma=1e-3,
+        heading_bias=1e-3,
         heading_bias_walk=0.0,
     )
     t = np.arange(101) * 1.0
@@ -63,5 +69,7 @@ def test_default_survey_drifts_about_half_a_metre():
         track = noisy_odometry(poses, t, cfg.odometry, np.random.default_rng(seed))
         err = np.linalg.norm(track.dead_reckoned[:, :2] - poses[:, :2], axis=1)
         rms.append(np.sqrt(np.mean(err**2)))
-    assert 0.35 <= np.median(rms) <= 0.65
+    # calibrated: median 0.505 m over 200 seeds; 40 seeds land within a few cm of it
+    assert 0.45 <= np.median(rms) <= 0.56
+    assert np.percentile(rms, 90) < 0.8
     assert track.dead_reckoned[0] == pytest.approx(poses[0])

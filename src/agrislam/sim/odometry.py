@@ -53,11 +53,11 @@ def step_sigma(delta: np.ndarray, noise: OdometryNoise) -> np.ndarray:
 
 
 def heading_bias(t: np.ndarray, noise: OdometryNoise, rng: np.random.Generator) -> np.ndarray:
-    """Yaw-rate bias (rad/s) over each interval of t: a constant drawn per robot plus a random
-    walk (a gyro's bias instability)."""
+    """Yaw-rate bias (rad/s) over each interval of t: a constant of the configured size with a
+    random sign per robot, plus a slow random walk (bias instability)."""
     dt = np.diff(t)
     walk = np.cumsum(rng.normal(0.0, 1.0, len(dt)) * noise.heading_bias_walk * np.sqrt(dt))
-    return rng.normal(0.0, noise.heading_bias_sigma) + walk
+    return rng.choice([-1.0, 1.0]) * noise.heading_bias + walk
 
 
 def noisy_odometry(
