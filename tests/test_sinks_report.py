@@ -116,21 +116,38 @@ def test_value_colours(sample_snapshot):
     np.testing.assert_allclose(types, [to_rgba("tab:blue"), to_rgba("tab:orange")])
 
 
-def test_headline_puts_the_farmers_numbers_first():
-    lines = _headline(
-        {
-            "timing": {"p50_ms": 12.5, "p95_ms": 30.25},
-            "objects": {"mapped": 398, "duplicates": 2},
-            "semantics": {"size": {"accuracy": 0.97531}},
-            "trajectory_rms_m": 0.0812,
-            "note": [1, 2],
-        }
-    )
-    assert lines[0] == (
-        "objects.mapped: 398   ·   objects.duplicates: 2   ·   "
-        "semantics.size.accuracy: 0.975   ·   trajectory_rms_m: 0.0812"
-    )
-    assert lines[1] == "timing.p50_ms: 12.5   ·   timing.p95_ms: 30.2"
+def test_headline_reads_the_evaluation_metrics():
+    metrics = {
+        "objects": {
+            "n_truth": 400,
+            "mapped": 398,
+            "duplicates": 2,
+            "false_objects": 1,
+            "position_rms": 0.04321,
+        },
+        "attributes": {
+            "colour": {"accuracy": 0.9975, "n": 398},
+            "size": {"accuracy": 0.96},
+            "length": {"rms": 0.0412, "bias": 0.01},
+        },
+        "trajectory": {
+            "optimised": {"rms_position": 0.0812},
+            "dead_reckoning": {"rms_position": 0.5034},
+        },
+        "association": {"purity": 0.991, "completeness": 0.982},
+        "timings": {"associate": {"p50_s": 0.01}},
+    }
+    assert _headline(metrics) == [
+        "mapped 398/400 plants (99.5%)   ·   2 duplicates, 1 false   ·   position RMS 0.043 m",
+        "association purity 99.1%, completeness 98.2%",
+        "colour 99.8% right   ·   size 96.0% right   ·   length RMS 0.0412",
+        "trajectory RMS 0.081 m (dead reckoning 0.503 m)",
+    ]
+
+
+def test_headline_of_other_metrics_lists_their_scalars():
+    lines = _headline({"run": {"steps": 120, "p95_ms": 30.25}, "note": [1, 2], "seed": 3, "a": 1})
+    assert lines == ["run.steps: 120   ·   run.p95_ms: 30.2   ·   seed: 3   ·   a: 1"]
 
 
 @pytest.mark.slow

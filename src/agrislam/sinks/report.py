@@ -37,7 +37,7 @@ MAX_TOP_ATTRIBUTES = 3
 MAX_STEP_BINS = 600
 ROW_OVERHANG_M = 0.3  # a row line runs this far past its first and last plant
 INTEREST_CMAP = "YlOrRd"
-HEADLINE_WORDS = ("mapped", "detected", "missed", "duplicate", "false", "accuracy", "rms")
+HEADLINE_SEPARATOR = "   ·   "
 # colours that say what the value is, for value names a farmer will recognise
 KNOWN_VALUE_COLOURS = {
     "healthy": "tab:green",
@@ -82,7 +82,7 @@ def write_report(
 def write_attribute_maps(
     snapshot: MapSnapshot,
     path: str | Path,
-    title: str = "agrislam field map: attributes",
+    title: str = "agrislam attribute maps",
     dpi: int = DPI,
 ) -> Path:
     """One map per attribute of the schema (all of them), coloured by its estimate."""
@@ -151,13 +151,61 @@ def _title_lines(snapshot: MapSnapshot, title: str, metrics: Mapping[str, Any] |
     return [first, *_headline(metrics or {})]
 
 
-def _headline(metrics: Mapping[str, Any], per_line: int = 4, most: int = 8) -> list[str]:
-    """The scalar metrics as 'name: value' items, a few per line; the ones a farmer asks
-    about first (plants mapped, accuracy, RMS, ...), then the others in their order."""
+def _headline(metrics: Mapping[str, Any]) -> list[str]:
+    """Headline lines under the title: the evaluation's key numbers when `metrics` is what
+    agrislam.evaluation writes (metrics.json), else its first scalar entries."""
+    return _evaluation_headline(metrics) or _scalar_headline(metrics)
+
+
+def _evaluation_headline(metrics: Mapping[str, Any]) -> list[str]:
+    """'mapped 398/400 plants (99.5 %)', attribute accuracies, trajectory RMS, ..."""
+    first, second = [], []
+    objects = _mapping(metrics.get("objects"))
+    if objects.get("n_truth"):
+        mapped, n = objects.get("mapped", 0), objects["n_truth"]
+        first.append(f"mapped {mapped}/{n} plants ({mapped / n:.1%})")
+        first.append(
+            f"{objects.get('duplicates', 0)} duplicates, {objects.get('false_objects', 0)} false"
+        )
+    if objects.get("position_rms") is not None:
+        first.append(f"position RMS {objects['position_rms']:.3f} m")
+    association = _mapping(metrics.get("association"))
+    if association.get("purity") is not None:
+        first.append(
+            f"association purity {association['purity']:.1%}, "
+            f"completeness {association.get('completeness', float('nan')):.1%}"
+        )
+    for name, scores in _mapping(metrics.get("attributes")).items():
+        scores = _mapping(scores)
+        if scores.get("accuracy") is not None:
+            second.append(f"{name} {scores['accuracy']:.1%} right")
+        elif scores.get("rms") is not None:
+            second.append(f"{name} RMS {scores['rms']:.3g}")
+    trajectory = _mapping(metrics.get("trajectory"))
+    optimised = _mapping(trajectory.get("optimised")).get("rms_position")
+    dead = _mapping(trajectory.get("dead_reckoning")).get("rms_position")
+    if optimised is not None:
+        second.append(
+            f"trajectory RMS {optimised:.3f} m"
+            + (f" (dead reckoning {dead:.3f} m)" if dead is not None else "")
+        )
+    return [*_lines(first, 3), *_lines(second, 3)]
+
+
+def _scalar_headline(metrics: Mapping[str, Any], per_line: int = 4, most: int = 8) -> list[str]:
     scalars = [(key, value) for key, value in _flatten(metrics) if _is_scalar(value)]
-    scalars.sort(key=lambda kv: not any(word in kv[0].lower() for word in HEADLINE_WORDS))
-    items = [f"{key}: {_fmt(value)}" for key, value in scalars[:most]]
-    return ["   ·   ".join(items[i : i + per_line]) for i in range(0, len(items), per_line)]
+    return _lines([f"{key}: {_fmt(value)}" for key, value in scalars[:most]], per_line)
+
+
+def _lines(items: list[str], per_line: int) -> list[str]:
+    """Items joined a few to a line."""
+    return [
+        HEADLINE_SEPARATOR.join(items[i : i + per_line]) for i in range(0, len(items), per_line)
+    ]
+
+
+def _mapping(value: Any) -> Mapping[str, Any]:
+    return value if isinstance(value, Mapping) else {}
 
 
 def _flatten(metrics: Mapping[str, Any], prefix: str = "") -> list[tuple[str, Any]]:
@@ -191,18 +239,25 @@ def _save(fig: Figure, path: str | Path, dpi: int) -> Path:
 
 def _field_extent(snapshot: MapSnapshot) -> tuple[float, float, float, float]:
     """(xmin, xmax, ymin, ymax) around the plants, else the surface, else the trajectories."""
-    xy = np.asarray(snapshot.objects.xy, dtype=float).reshape(-1, 2)
-    xy = xy[np.all(np.isfinite(xy), axis=1)]
+    xy = _finite(np.asarray(snapshot.objects.xy, dtype=float).reshape(-1, 2))
     if len(xy) == 0 and snapshot.interest_surface is not None:
         e = snapshot.interest_surface.extent
         xy = np.array([[e[0], e[2]], [e[1], e[3]]])
-    if len(xy) == 0:
-        xy = _all_poses(snapshot, None)
+    return _extent_of(xy if len(xy) else _all_poses(snapshot, None))
+
+
+def _extent_of(xy: np.ndarray) -> tuple[float, float, float, float]:
+    """Bounding box of the finite points plus a margin (5 %, at least 0.5 m)."""
+    xy = _finite(xy)
     if len(xy) == 0:
         return (-1.0, 1.0, -1.0, 1.0)
     lo, hi = xy.min(axis=0), xy.max(axis=0)
     margin = max(0.05 * float(np.max(hi - lo)), 0.5)
     return (lo[0] - margin, hi[0] + margin, lo[1] - margin, hi[1] + margin)
+
+
+def _finite(xy: np.ndarray) -> np.ndarray:
+    return xy[np.all(np.isfinite(xy), axis=1)]
 
 
 def _all_poses(snapshot: MapSnapshot, truth: Mapping[str, Trajectory] | None) -> np.ndarray:
@@ -459,23 +514,8 @@ def _draw_trajectories(
                     fontsize=8,
                     color="tab:blue",
                 )
-    poses = (
-        np.concatenate([_all_poses(snapshot, truth), xy])
-        if len(xy)
-        else _all_poses(snapshot, truth)
-    )
-    extent = _extent_of(poses)
-    _field_axes(ax, extent, "trajectories")
+    _field_axes(ax, _extent_of(np.concatenate([_all_poses(snapshot, truth), xy])), "trajectories")
     ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8, frameon=False)
-
-
-def _extent_of(xy: np.ndarray) -> tuple[float, float, float, float]:
-    xy = xy[np.all(np.isfinite(xy), axis=1)] if len(xy) else xy
-    if len(xy) == 0:
-        return (-1.0, 1.0, -1.0, 1.0)
-    lo, hi = xy.min(axis=0), xy.max(axis=0)
-    margin = max(0.05 * float(np.max(hi - lo)), 0.5)
-    return (lo[0] - margin, hi[0] + margin, lo[1] - margin, hi[1] + margin)
 
 
 # ------------------------------------------------------------------------- step times
