@@ -59,7 +59,8 @@ def test_odometry_records_dead_reckon_to_the_simulated_track():
     start = recs[0].robots["r1"].pose
     odo = [r for r in recs if isinstance(r, Odometry)]
     np.testing.assert_array_equal(odo[0].delta, 0.0)  # the start marker
-    np.testing.assert_array_equal(odo[0].cov, 0.0)
+    np.testing.assert_allclose(odo[0].cov, np.diag([1e-8, 1e-8, 1e-8]))  # standing still
+    assert np.linalg.eigvalsh(odo[0].cov).min() > 0  # a graph back end can use it
     dr = integrate(start, np.array([o.delta for o in odo[1:]]))
     np.testing.assert_allclose(dr, sim.survey(0, 0).odometry.dead_reckoned, atol=1e-12)
     truth = np.array([r.pose for r in recs if isinstance(r, TruthPose)])

@@ -52,9 +52,9 @@ def test_frame_between_odometry_gets_an_odometry_record_at_its_time():
     np.testing.assert_allclose(out[3].delta, [1.5, 0.0, 0.0])
     np.testing.assert_allclose(out[1].cov, 0.25 * COV)
     np.testing.assert_allclose(out[3].cov, 0.75 * COV)
-    # the first odometry of a robot is a start marker: no motion, no uncertainty
+    # a robot's first delta record passes as it is
     np.testing.assert_array_equal(out[0].delta, np.zeros(3))
-    np.testing.assert_array_equal(out[0].cov, np.zeros((3, 3)))
+    assert out[0].cov is None
 
 
 def test_pieces_compose_back_and_covariances_sum_back():
@@ -88,8 +88,11 @@ def test_pieces_compose_back_and_covariances_sum_back():
 
 def test_pose_records_become_deltas():
     p0, p1 = np.array([1.0, 1.0, np.pi / 2]), np.array([1.0, 3.0, np.pi / 2])
-    out = list(synchronise([_odom(0.0, pose=p0), _det(1.0), _odom(2.0, pose=p1, cov=COV)]))
+    out = list(synchronise([_odom(0.0, pose=p0, cov=COV), _det(1.0), _odom(2.0, pose=p1, cov=COV)]))
     assert all(r.pose is None for r in out if isinstance(r, Odometry))
+    # the first pose only starts the odometry frame: zero motion, with its covariance
+    np.testing.assert_array_equal(out[0].delta, np.zeros(3))
+    np.testing.assert_array_equal(out[0].cov, COV)
     np.testing.assert_allclose(out[1].delta, [1.0, 0.0, 0.0], atol=1e-12)  # forward in its frame
     np.testing.assert_allclose(out[3].delta, [1.0, 0.0, 0.0], atol=1e-12)
 

@@ -168,9 +168,11 @@ class Simulator:
                 yield Detections(t=float(t), robot=sv.name, objects=dets, sensor="front")
 
     def _odometry(self, sv: RobotSurvey, i: int, pose: np.ndarray) -> Odometry:
-        """The first record of a robot marks where its timeline starts: zero motion, zero cov."""
+        """The first record of a robot marks where its timeline starts: zero motion, with the
+        standing-still uncertainty (a zero covariance would be singular in the graph)."""
         if i == 0:
-            delta, cov = np.zeros(3), np.zeros((3, 3))
+            floor = self.cfg.odometry.report_scale * np.asarray(self.cfg.odometry.sigma_floor)
+            delta, cov = np.zeros(3), np.diag(floor**2)
         else:
             delta, cov = sv.odometry.delta[i - 1], sv.odometry.cov[i - 1]
         if self.cfg.odometry.kind == "pose":

@@ -56,12 +56,13 @@ class _Robot:
 class PoseSync:
     """Iterate `records` with odometry at every detection time (see the module docstring).
 
-    The first odometry record of each robot becomes a zero `delta` with zero covariance: it
-    only marks where the robot's timeline starts. A frame earlier than a robot's first
-    odometry, or later than its last, cannot be placed: it is listed in `unplaced` with the
-    reason once iteration ends. `default_cov` fills in odometry without a covariance before
-    splitting (else such pieces keep cov None). Records of different robots may interleave;
-    a held-back frame is released when its robot's next odometry arrives."""
+    A robot's first `pose` record becomes a zero `delta` (it only marks where the robot's
+    odometry frame and timeline start); a first `delta` record passes as it is. A frame
+    earlier than a robot's first odometry, or later than its last, cannot be placed: it is
+    listed in `unplaced` with the reason once iteration ends. `default_cov` fills in
+    odometry without a covariance before splitting (else such pieces keep cov None). Records
+    of different robots may interleave; a held-back frame is released when its robot's next
+    odometry arrives."""
 
     def __init__(self, records: Iterable[Record], default_cov: np.ndarray | None = None) -> None:
         self.records = records
@@ -90,7 +91,7 @@ class PoseSync:
 
     def _odometry(self, state: _Robot, rec: Odometry) -> Iterator[Record]:
         if state.t is None:
-            yield Odometry(t=rec.t, robot=rec.robot, delta=np.zeros(3), cov=np.zeros((3, 3)))
+            yield self._first(rec)
             early = [d for d in state.pending if d.t < rec.t]
             self.unplaced += [(d, BEFORE_FIRST) for d in early]
             yield from (d for d in state.pending if d.t == rec.t)
@@ -129,6 +130,14 @@ class PoseSync:
         at_end = [d for d in state.pending if d.t == rec.t]
         state.pending = [d for d in state.pending if d.t > rec.t]
         yield from at_end
+
+    def _first(self, rec: Odometry) -> Odometry:
+        """A robot's first record: a `delta` one as it is (the motion since its start pose); a
+        `pose` one marks the start of its odometry frame: zero motion."""
+        if rec.delta is not None:
+            return rec
+        cov = rec.cov if rec.cov is not None else self.default_cov
+        return Odometry(t=rec.t, robot=rec.robot, delta=np.zeros(3), cov=cov)
 
     @staticmethod
     def _piece(
