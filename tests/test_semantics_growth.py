@@ -54,6 +54,14 @@ def test_transition_matrix_with_process_noise_by_hand():
     )
 
 
+def test_very_long_dt_sends_everything_to_the_last_cell():
+    # e^{alpha dt} would overflow (alpha dt = 2000): every cell ends in the last one
+    A = transition_matrix(4, _model(2.0, 0.6), 1000 * SECONDS_PER_DAY)
+    expected = np.zeros((4, 4))
+    expected[3] = 1.0
+    np.testing.assert_array_equal(A, expected)
+
+
 def test_two_cell_full_shift_by_hand():
     # n = 2, e^{alpha dt} = 2: f(x) = (1 + x) / 2 sends cell 1 [0, .5] to [.5, .75], cell 2
     # to [.75, 1]: everything ends in cell 2

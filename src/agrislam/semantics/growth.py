@@ -48,7 +48,9 @@ def transition_matrices(n: int, model: GrowthModel, dt_s: np.ndarray) -> np.ndar
     Optional process noise leaks 1 - (1 - w)^dt of the mass uniformly over the cells.
     """
     days = _days(dt_s)
-    growth = np.exp(model.rate_per_day * days)[:, None, None]  # e^{alpha dt} = 1 / f'
+    # e^{alpha dt}; beyond n + 1 every p_ij with i < n is already <= 0, so capping it there
+    # changes no entry and keeps a long dt from overflowing to inf (0 * inf = nan at i = n)
+    growth = np.exp(np.minimum(model.rate_per_day * days, np.log(n + 1.0)))[:, None, None]
     i = np.arange(1, n + 1, dtype=float)[None, :, None]
     j = np.arange(1, n + 1, dtype=float)[None, None, :]
     p = n - (n - i) * growth - (j - 1.0)  # App. B p_ij
