@@ -8,8 +8,15 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy.spatial import cKDTree
 
-from agrislam.config import ContinuousAttribute, DiscreteAttribute, FieldSchema
+from agrislam.config import (
+    SECONDS_PER_DAY,
+    ContinuousAttribute,
+    DiscreteAttribute,
+    FieldSchema,
+    GrowthModel,
+)
 from agrislam.records import TruthObject
+from agrislam.semantics.growth import grown_mean
 from agrislam.sim.config import FieldLayout, SimConfig
 
 WEED = "weed"
@@ -81,8 +88,10 @@ class Field:
         and the size-like attributes follow their length."""
         if days < 0:
             raise ValueError(f"cannot grow backwards ({days} days)")
-        # x(t + dt) = l_max - (l_max - x(t)) e^{-alpha dt}  (App. B)
-        length = self.l_max - (self.l_max - self.length) * np.exp(-self.growth_rate * days)
+        # x(t + dt) = l_max - (l_max - x(t)) e^{-alpha dt} (App. B), each plant with its own
+        # alpha: the unit-rate model run for alpha * dt
+        unit = GrowthModel(rate_per_day=1.0, l_max=self.l_max)
+        length = grown_mean(self.length, unit, self.growth_rate * days * SECONDS_PER_DAY)
         return replace(
             self,
             length=length,
