@@ -106,6 +106,11 @@ def _truth_tracks(poses: Iterable[TruthPose]) -> dict[str, tuple[np.ndarray, np.
     return out
 
 
+def truth_trajectories(poses: Iterable[TruthPose]) -> dict[str, Trajectory]:
+    """The true poses of each robot as trajectories, in time order."""
+    return {robot: Trajectory(robot, t, p) for robot, (t, p) in _truth_tracks(poses).items()}
+
+
 def truth_at(t_truth: np.ndarray, truth: np.ndarray, t: np.ndarray) -> np.ndarray:
     """True poses at times t, linearly interpolated (the heading unwrapped first)."""
     theta = np.unwrap(truth[:, 2])
