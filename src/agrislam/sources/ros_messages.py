@@ -25,7 +25,7 @@ from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
-from rosbags.rosbag2 import StoragePlugin, Writer
+from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin, Writer
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from rosbags.typesys.store import Typestore
 
@@ -226,13 +226,15 @@ def image_array(msg: Any) -> np.ndarray:
 
 @contextmanager
 def open_ros2_writer(
-    path: str | Path, storage: Literal["mcap", "sqlite3"] = "mcap"
+    path: str | Path, storage: Literal["mcap", "sqlite3"] = "mcap", compress: bool = False
 ) -> Iterator[Writer]:
     """A rosbags rosbag2 Writer (version 9) for `path`.
 
     A path ending in ``.mcap`` becomes a bare MCAP file (written as a rosbag2 folder
     next to it, whose single MCAP file is then moved into place); any other path is a
-    rosbag2 folder with the given storage plugin. Existing paths are not overwritten.
+    rosbag2 folder with the given storage plugin. `compress`: zstd-compressed MCAP chunks
+    (storage compression, which ROS 2 and Foxglove read). Existing paths are not
+    overwritten.
     """
     path = Path(path)
     if path.exists():
@@ -241,14 +243,21 @@ def open_ros2_writer(
     if bare and storage != "mcap":
         raise ValueError(f"{path}: a .mcap file needs storage='mcap', got {storage!r}")
     plugin = StoragePlugin.MCAP if storage == "mcap" else StoragePlugin.SQLITE3
+
+    def writer(folder: Path) -> Writer:
+        w = Writer(folder, version=9, storage_plugin=plugin)
+        if compress and storage == "mcap":
+            w.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
+        return w
+
     if not bare:
-        with Writer(path, version=9, storage_plugin=plugin) as writer:
-            yield writer
+        with writer(path) as w:
+            yield w
         return
     with tempfile.TemporaryDirectory(dir=path.parent, prefix=f".{path.stem}-") as tmp:
         folder = Path(tmp) / path.stem
-        with Writer(folder, version=9, storage_plugin=plugin) as writer:
-            yield writer
+        with writer(folder) as w:
+            yield w
         (mcap,) = folder.glob("*.mcap")
         shutil.move(str(mcap), path)
 

@@ -1,0 +1,203 @@
+"""The map for Foxglove: an MCAP file of Foxglove's own schemas (foxglove-sdk, an optional
+extra: ``pip install agrislam[foxglove]``), which its 3D panel shows without any ROS
+message definitions.
+
+Topics (frame ``map``): ``/agrislam/plants`` (SceneUpdate: an entity per object, id =
+object id, a sphere coloured by the chosen attribute as in `ros_map.plant_style`, its
+2-sigma position ellipse, and every attribute's distribution as entity metadata, which
+Foxglove lists when a plant is clicked), ``/agrislam/rows`` (SceneUpdate, the row lines),
+``/agrislam/interest`` (Grid of the interest surface, sec. 2.7, value field ``interest``),
+``/agrislam/trajectory/<robot>`` and ``/agrislam/dead_reckoning/<robot>`` (PosesInFrame).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from agrislam.perception.camera import quaternion_from_yaw
+from agrislam.sinks.csv import discrete_columns
+from agrislam.sinks.ros_map import (
+    covariance_ellipses,
+    plant_style,
+    row_segments,
+    snapshot_time,
+)
+from agrislam.snapshot import MapSnapshot
+
+FRAME = "map"
+
+
+def _sdk() -> tuple[Any, Any, Any]:
+    try:
+        import foxglove
+        from foxglove import channels, messages
+    except ImportError as err:  # optional extra
+        raise ImportError(
+            "the Foxglove sink needs foxglove-sdk: pip install 'agrislam[foxglove]'"
+        ) from err
+    return foxglove, channels, messages
+
+
+def _timestamp(m: Any, t: float) -> Any:
+    ns = round(t * 1e9)
+    return m.Timestamp(ns // 10**9, ns % 10**9)
+
+
+def _pose(m: Any, x: float, y: float, z: float = 0.0, yaw: float = 0.0) -> Any:
+    qx, qy, qz, qw = quaternion_from_yaw(yaw)
+    return m.Pose(
+        position=m.Vector3(x=float(x), y=float(y), z=float(z)),
+        orientation=m.Quaternion(x=qx, y=qy, z=qz, w=qw),
+    )
+
+
+def _color(m: Any, rgba: Any) -> Any:
+    r, g, b, a = (float(v) for v in rgba)
+    return m.Color(r=r, g=g, b=b, a=a)
+
+
+def entity_metadata(snapshot: MapSnapshot) -> list[list[tuple[str, str]]]:
+    """Per object: its measurement count, interest and every attribute's distribution
+    ("size" -> "small 0.10, medium 0.20, big 0.70") or mean and std."""
+    objects = snapshot.objects
+    k = len(objects)
+    out: list[list[tuple[str, str]]] = [
+        [("n_meas", str(int(n))), ("interest", f"{float(h):.3f}")]
+        for n, h in zip(np.asarray(objects.n_meas), np.asarray(objects.interest), strict=True)
+    ]
+    for name, (values, belief) in discrete_columns(snapshot).items():
+        for i in range(k):
+            out[i].append(
+                (name, ", ".join(f"{v} {p:.2f}" for v, p in zip(values, belief[i], strict=True)))
+            )
+    for name, (mean, var) in objects.continuous.items():
+        for i in range(k):
+            out[i].append((name, f"{float(mean[i]):.4g} ± {float(np.sqrt(var[i])):.2g}"))
+    return out
+
+
+def write_foxglove_mcap(
+    snapshot: MapSnapshot,
+    path: str | Path,
+    attribute: str | None = None,
+    *,
+    diameter: float = 0.15,
+    stamp: float | None = None,
+    overwrite: bool = False,
+) -> Path:
+    """Write the map as an MCAP file of Foxglove schemas (see the module docstring)."""
+    foxglove, channels, m = _sdk()
+    path = Path(path)
+    t = snapshot_time(snapshot) if stamp is None else stamp
+    ts, log_time = _timestamp(m, t), round(t * 1e9)
+    objects = snapshot.objects
+    style = plant_style(snapshot, attribute)
+    xy = np.asarray(objects.xy, dtype=float).reshape(-1, 2)
+    size = diameter * (0.5 + 0.5 * style.sureness)
+    axes, heading = covariance_ellipses(objects.cov) if len(objects) else (np.empty((0, 2)), [])
+    metadata = entity_metadata(snapshot)
+    entities = []
+    for i, ident in enumerate(np.asarray(objects.ids)):
+        x, y, s = xy[i, 0], xy[i, 1], float(size[i])
+        a, b = (max(float(v), 0.01) for v in axes[i])
+        entities.append(
+            m.SceneEntity(
+                timestamp=ts,
+                frame_id=FRAME,
+                id=str(int(ident)),
+                metadata=[m.KeyValuePair(key=key, value=v) for key, v in metadata[i]],
+                spheres=[
+                    m.SpherePrimitive(
+                        pose=_pose(m, x, y, 0.5 * s),
+                        size=m.Vector3(x=s, y=s, z=s),
+                        color=_color(m, style.rgba[i]),
+                    )
+                ],
+                cylinders=[
+                    m.CylinderPrimitive(
+                        pose=_pose(m, x, y, 0.0, float(heading[i])),
+                        size=m.Vector3(x=a, y=b, z=0.005),
+                        bottom_scale=1.0,
+                        top_scale=1.0,
+                        color=m.Color(r=0.5, g=0.5, b=0.5, a=0.35),
+                    )
+                ],
+                texts=[
+                    m.TextPrimitive(
+                        pose=_pose(m, x, y, s + 0.08),
+                        billboard=True,
+                        font_size=12.0,
+                        scale_invariant=True,
+                        color=m.Color(r=1.0, g=1.0, b=1.0, a=1.0),
+                        text=f"{int(ident)} {style.labels[i]}",
+                    )
+                ],
+            )
+        )
+    rows = [
+        m.SceneEntity(
+            timestamp=ts,
+            frame_id=FRAME,
+            id=f"row{r}",
+            lines=[
+                m.LinePrimitive(
+                    type=m.LinePrimitiveLineType.LineList,
+                    pose=_pose(m, 0.0, 0.0),
+                    thickness=0.02,
+                    points=[m.Point3(x=float(p[0]), y=float(p[1]), z=0.0) for p in seg],
+                    color=m.Color(r=0.55, g=0.4, b=0.25, a=0.8),
+                )
+            ],
+        )
+        for r, seg in enumerate(row_segments(snapshot))
+    ]
+    context = foxglove.Context()
+    with foxglove.open_mcap(path, allow_overwrite=overwrite, context=context):
+        plants = channels.SceneUpdateChannel("/agrislam/plants", context=context)
+        plants.log(m.SceneUpdate(entities=entities), log_time=log_time)
+        if rows:
+            rows_channel = channels.SceneUpdateChannel("/agrislam/rows", context=context)
+            rows_channel.log(m.SceneUpdate(entities=rows), log_time=log_time)
+        if snapshot.interest_surface is not None:
+            grid = channels.GridChannel("/agrislam/interest", context=context)
+            grid.log(_interest_grid(m, snapshot, ts), log_time=log_time)
+        for kind, trajectories in (
+            ("trajectory", snapshot.trajectories),
+            ("dead_reckoning", snapshot.dead_reckoning),
+        ):
+            for robot, tr in trajectories.items():
+                poses = [
+                    _pose(m, p[0], p[1], 0.0, float(p[2]))
+                    for p in np.asarray(tr.poses, dtype=float)
+                ]
+                channel = channels.PosesInFrameChannel(f"/agrislam/{kind}/{robot}", context=context)
+                channel.log(
+                    m.PosesInFrame(timestamp=ts, frame_id=FRAME, poses=poses), log_time=log_time
+                )
+    return path
+
+
+def _interest_grid(m: Any, snapshot: MapSnapshot, ts: Any) -> Any:
+    """The interest surface as a float32 Grid, row-major from the (x0, y0) corner."""
+    surface = snapshot.interest_surface
+    assert surface is not None
+    values = np.ascontiguousarray(surface.values, dtype="<f4")
+    nx = values.shape[1]
+    return m.Grid(
+        timestamp=ts,
+        frame_id=FRAME,
+        pose=_pose(m, surface.x0, surface.y0),
+        column_count=nx,
+        cell_size=m.Vector2(x=surface.resolution, y=surface.resolution),
+        row_stride=4 * nx,
+        cell_stride=4,
+        fields=[
+            m.PackedElementField(
+                name="interest", offset=0, type=m.PackedElementFieldNumericType.Float32
+            )
+        ],
+        data=values.tobytes(),
+    )

@@ -1,0 +1,291 @@
+"""The map for ROS tools: an MCAP file (a ROS 2 recording, opens in Foxglove, RViz via
+``ros2 bag play``) with the plants as ``visualization_msgs/MarkerArray`` and every robot's
+trajectory as ``nav_msgs/Path``.
+
+Plants are coloured by the most probable value of one attribute (the report's colours),
+opacity and size show how sure the map is of it: 0.15 opacity and half size for a belief
+that knows nothing, solid and full size for a certain one.
+
+Topics (frame ``map``): ``/agrislam/plants`` (namespaces ``plants``: one sphere per
+object, id = object id; ``uncertainty``: the 2-sigma position ellipse; ``labels``: text;
+``rows``: the fitted row lines), ``/agrislam/trajectory/<robot>`` (optimised) and
+``/agrislam/dead_reckoning/<robot>``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from matplotlib import colormaps
+
+from agrislam.config import ContinuousAttribute
+from agrislam.perception.camera import quaternion_from_yaw
+from agrislam.sinks.csv import discrete_columns, most_probable
+from agrislam.sinks.report import value_colours
+from agrislam.snapshot import MapSnapshot, Trajectory
+from agrislam.sources.ros_messages import (
+    MARKER_ARRAY,
+    PATH,
+    MessageFactory,
+    open_ros2_writer,
+    seconds_to_ns,
+)
+
+PLANTS_TOPIC = "/agrislam/plants"
+MIN_OPACITY = 0.15  # a belief that knows nothing is still visible
+ELLIPSE_SIGMAS = 2.0
+MARKER = {"SPHERE": 2, "CYLINDER": 3, "LINE_LIST": 5, "TEXT_VIEW_FACING": 9}
+ACTION = {"ADD": 0, "DELETEALL": 3}
+
+
+@dataclass(frozen=True, slots=True)
+class PlantStyle:
+    """How each object is drawn: RGBA (k, 4) with opacity from `sureness` (k,) in [0, 1],
+    and a label per object ("size: big 0.82")."""
+
+    attribute: str | None
+    rgba: np.ndarray
+    sureness: np.ndarray
+    labels: list[str]
+
+
+def default_attribute(snapshot: MapSnapshot) -> str | None:
+    """The first discrete attribute of the map, else the first continuous one."""
+    objects = snapshot.objects
+    return next(iter(objects.discrete), next(iter(objects.continuous), None))
+
+
+def plant_style(snapshot: MapSnapshot, attribute: str | None = None) -> PlantStyle:
+    """Colour by the attribute's most probable value (discrete) or mean (continuous, viridis
+    over the schema's range); without attributes, by the interest heuristic h (sec. 2.7)."""
+    objects = snapshot.objects
+    name = attribute if attribute is not None else default_attribute(snapshot)
+    k = len(objects)
+    if name is None:
+        h = np.asarray(objects.interest, dtype=float)
+        rgba = colormaps["viridis"](np.clip(h, 0.0, 1.0))
+        return PlantStyle(None, rgba, np.ones(k), [f"h {v:.2f}" for v in h])
+    if name in objects.discrete:
+        values, belief = discrete_columns(snapshot)[name]
+        top, p = most_probable(belief)
+        n = len(values)
+        # 0 for a uniform belief, 1 for a certain one
+        sureness = np.clip((p - 1.0 / n) / (1.0 - 1.0 / n), 0.0, 1.0)
+        rgba = value_colours(name, values, snapshot)[top] if k else np.empty((0, 4))
+        labels = [f"{name}: {values[j]} {q:.2f}" for j, q in zip(top, p, strict=True)]
+    elif name in objects.continuous:
+        mean, var = (np.asarray(a, dtype=float) for a in objects.continuous[name])
+        spec = snapshot.schema.continuous.get(name) if snapshot.schema is not None else None
+        if isinstance(spec, ContinuousAttribute):
+            lo, hi, prior_var = spec.min, spec.max, spec.initial_var
+        else:
+            lo, hi = float(np.min(mean, initial=0.0)), float(np.max(mean, initial=1.0))
+            prior_var = (hi - lo) ** 2 / 12.0 or 1.0
+        rgba = colormaps["viridis"](np.clip((mean - lo) / ((hi - lo) or 1.0), 0.0, 1.0))
+        # 0 while the std is as wide as the prior's, 1 when it has shrunk to nothing
+        sureness = np.clip(1.0 - np.sqrt(var / prior_var), 0.0, 1.0)
+        labels = [f"{name}: {m:.3g} ± {np.sqrt(v):.2g}" for m, v in zip(mean, var, strict=True)]
+    else:
+        known = [*objects.discrete, *objects.continuous]
+        raise ValueError(f"attribute {name!r} is not in the map (it has {known})")
+    rgba = np.array(rgba, dtype=float).reshape(k, 4)
+    rgba[:, 3] = MIN_OPACITY + (1.0 - MIN_OPACITY) * sureness
+    return PlantStyle(name, rgba, sureness, labels)
+
+
+def covariance_ellipses(
+    cov: np.ndarray, sigmas: float = ELLIPSE_SIGMAS
+) -> tuple[np.ndarray, np.ndarray]:
+    """Full axis lengths (k, 2), major first, and the major axis heading (k,) of the
+    `sigmas` ellipses of 2x2 covariances (k, 2, 2)."""
+    w, V = np.linalg.eigh(np.asarray(cov, dtype=float).reshape(-1, 2, 2))
+    axes = 2.0 * sigmas * np.sqrt(np.clip(w[:, ::-1], 0.0, None))
+    heading = np.arctan2(V[:, 1, 1], V[:, 0, 1])
+    return axes, heading
+
+
+def row_segments(snapshot: MapSnapshot) -> np.ndarray:
+    """(r, 2, 2) end points of the fitted rows over the along-row extent of the objects."""
+    rows = snapshot.rows
+    if rows is None or len(rows.offsets) == 0:
+        return np.empty((0, 2, 2))
+    d = np.array([np.cos(rows.angle), np.sin(rows.angle)])
+    n = np.array([-d[1], d[0]])  # snapshot.RowLines: row k is {p : n . p = offsets[k]}
+    xy = np.asarray(snapshot.objects.xy, dtype=float).reshape(-1, 2)
+    along = xy @ d if len(xy) else np.zeros(1)
+    lo, hi = along.min() - 0.5, along.max() + 0.5
+    base = np.asarray(rows.offsets, dtype=float)[:, None] * n
+    return np.stack([base + lo * d, base + hi * d], axis=1)
+
+
+def snapshot_time(snapshot: MapSnapshot) -> float:
+    """The latest trajectory time of the snapshot (0 without trajectories)."""
+    ends = [float(tr.t[-1]) for tr in snapshot.trajectories.values() if len(tr.t)]
+    return max(ends, default=0.0)
+
+
+class _MarkerBuilder:
+    def __init__(self, make: MessageFactory, t: float, frame: str) -> None:
+        self.make, self.t, self.frame = make, t, frame
+        self.header = make.header(t, frame)  # shared: every marker has the same one
+
+    def color(self, rgba: list[float] | tuple[float, ...]) -> object:
+        r, g, b, a = rgba
+        return self.make.T["std_msgs/msg/ColorRGBA"](r=r, g=g, b=b, a=a)
+
+    def marker(
+        self,
+        ns: str,
+        ident: int,
+        kind: str,
+        xyz: tuple[float, float, float] = (0.0, 0.0, 0.0),
+        yaw: float = 0.0,
+        scale: tuple[float, float, float] = (1.0, 1.0, 1.0),
+        rgba: list[float] | tuple[float, ...] = (1.0, 1.0, 1.0, 1.0),
+        text: str = "",
+        points: list[tuple[float, float, float]] | None = None,
+        action: str = "ADD",
+    ) -> object:
+        T = self.make.T
+        pts = [
+            T["geometry_msgs/msg/Point"](x=float(x), y=float(y), z=float(z))
+            for x, y, z in points or []
+        ]
+        return T["visualization_msgs/msg/Marker"](
+            header=self.header,
+            ns=ns,
+            id=int(ident),
+            type=MARKER[kind],
+            action=ACTION[action],
+            pose=self.make.pose(xyz, quaternion_from_yaw(yaw)),
+            scale=self.make.vector3(scale),
+            color=self.color(rgba),
+            lifetime=T["builtin_interfaces/msg/Duration"](sec=0, nanosec=0),
+            frame_locked=False,
+            points=pts,
+            colors=[],
+            texture_resource="",
+            texture=T["sensor_msgs/msg/CompressedImage"](
+                header=self.header, format="", data=np.zeros(0, np.uint8)
+            ),
+            uv_coordinates=[],
+            text=text,
+            mesh_resource="",
+            mesh_file=T["visualization_msgs/msg/MeshFile"](filename="", data=np.zeros(0, np.uint8)),
+            mesh_use_embedded_materials=False,
+        )
+
+
+def plant_markers(
+    snapshot: MapSnapshot,
+    make: MessageFactory,
+    attribute: str | None = None,
+    t: float = 0.0,
+    frame: str = "map",
+    diameter: float = 0.15,
+    labels: bool = True,
+) -> object:
+    """The MarkerArray of the plant map (see the module docstring)."""
+    objects = snapshot.objects
+    style = plant_style(snapshot, attribute)
+    build = _MarkerBuilder(make, t, frame)
+    markers = [build.marker("", 0, "SPHERE", action="DELETEALL")]  # replace an older map
+    xy = np.asarray(objects.xy, dtype=float).reshape(-1, 2).tolist()
+    size = (diameter * (0.5 + 0.5 * style.sureness)).tolist()
+    rgba = style.rgba.tolist()
+    axes, heading = covariance_ellipses(objects.cov) if len(objects) else (np.empty((0, 2)), [])
+    for i, ident in enumerate(np.asarray(objects.ids).tolist()):
+        x, y = xy[i]
+        s = size[i]
+        markers.append(
+            build.marker("plants", ident, "SPHERE", (x, y, 0.5 * s), 0.0, (s, s, s), rgba[i])
+        )
+        a, b = (max(float(v), 0.01) for v in axes[i])
+        markers.append(
+            build.marker(
+                "uncertainty",
+                ident,
+                "CYLINDER",
+                (x, y, 0.0),
+                float(heading[i]),
+                (a, b, 0.005),
+                (0.5, 0.5, 0.5, 0.35),
+            )
+        )
+        if labels:
+            markers.append(
+                build.marker(
+                    "labels",
+                    ident,
+                    "TEXT_VIEW_FACING",
+                    (x, y, s + 0.08),
+                    0.0,
+                    (0.05, 0.05, 0.05),
+                    (1.0, 1.0, 1.0, 1.0),
+                    f"{ident} {style.labels[i]}",
+                )
+            )
+    for r, (p0, p1) in enumerate(row_segments(snapshot)):
+        markers.append(
+            build.marker(
+                "rows",
+                r,
+                "LINE_LIST",
+                scale=(0.02, 0.0, 0.0),
+                rgba=(0.55, 0.4, 0.25, 0.8),
+                points=[(p0[0], p0[1], 0.0), (p1[0], p1[1], 0.0)],
+            )
+        )
+    return make.T[MARKER_ARRAY](markers=markers)
+
+
+def trajectory_path(trajectory: Trajectory, make: MessageFactory, frame: str = "map") -> object:
+    T = make.T
+    poses = [
+        T["geometry_msgs/msg/PoseStamped"](
+            header=make.header(float(t), frame),
+            pose=make.pose((p[0], p[1], 0.0), quaternion_from_yaw(float(p[2]))),
+        )
+        for t, p in zip(trajectory.t, np.asarray(trajectory.poses, dtype=float), strict=True)
+    ]
+    t_end = float(trajectory.t[-1]) if len(trajectory.t) else 0.0
+    return T[PATH](header=make.header(t_end, frame), poses=poses)
+
+
+def write_map_mcap(
+    snapshot: MapSnapshot,
+    path: str | Path,
+    attribute: str | None = None,
+    *,
+    frame: str = "map",
+    stamp: float | None = None,
+    diameter: float = 0.15,
+    labels: bool = True,
+    overwrite: bool = False,
+) -> Path:
+    """Write the map as a bare MCAP file (ROS 2, CDR): plants as MarkerArray coloured by
+    `attribute` (default: the first discrete one), trajectories as nav_msgs/Path."""
+    path = Path(path)
+    if overwrite:
+        path.unlink(missing_ok=True)
+    make = MessageFactory("humble")
+    t = snapshot_time(snapshot) if stamp is None else stamp
+    ns = seconds_to_ns(t)
+    with open_ros2_writer(path, "mcap", compress=True) as writer:
+        conn = writer.add_connection(PLANTS_TOPIC, MARKER_ARRAY, typestore=make.store)
+        msg = plant_markers(snapshot, make, attribute, t, frame, diameter, labels)
+        writer.write(conn, ns, make.serialize(msg, MARKER_ARRAY))
+        for kind, trajectories in (
+            ("trajectory", snapshot.trajectories),
+            ("dead_reckoning", snapshot.dead_reckoning),
+        ):
+            for robot, trajectory in trajectories.items():
+                conn = writer.add_connection(
+                    f"/agrislam/{kind}/{robot}", PATH, typestore=make.store
+                )
+                writer.write(
+                    conn, ns, make.serialize(trajectory_path(trajectory, make, frame), PATH)
+                )
+    return path

@@ -1,0 +1,188 @@
+"""The map as MCAP for ROS tools (MarkerArray + Path) and for Foxglove (SceneUpdate), each
+read back with an independent reader."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+from matplotlib.colors import to_rgba
+from rosbags.highlevel import AnyReader
+
+from agrislam.perception.camera import yaw_from_quaternion
+from agrislam.sinks.ros_map import covariance_ellipses, plant_style, write_map_mcap
+from agrislam.snapshot import MapSnapshot
+
+COLOURS = ["blue", "cyan", "green", "orange", "pink", "red", "yellow"]  # conftest's schema
+
+
+def read_ros(path: Path) -> dict[str, Any]:
+    with AnyReader([path]) as reader:
+        return {
+            conn.topic: reader.deserialize(raw, conn.msgtype) for conn, _, raw in reader.messages()
+        }
+
+
+def by_ns(markers: list[Any], ns: str) -> list[Any]:
+    return [m for m in markers if m.ns == ns]
+
+
+def test_covariance_ellipse_by_hand() -> None:
+    a = np.deg2rad(30.0)
+    R = np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])
+    cov = R @ np.diag([0.04, 0.01]) @ R.T
+    axes, heading = covariance_ellipses(cov[None])
+    np.testing.assert_allclose(axes, [[0.8, 0.4]])  # 2 x 2 sigma: 2 * 2 * (0.2, 0.1)
+    assert np.mod(heading[0], np.pi) == pytest.approx(a)
+
+
+def test_marker_array_and_paths(tmp_path: Path, sample_snapshot: MapSnapshot) -> None:
+    snap = sample_snapshot
+    path = write_map_mcap(snap, tmp_path / "map.mcap", "colour")
+    msgs = read_ros(path)
+    assert set(msgs) == {
+        "/agrislam/plants",
+        "/agrislam/trajectory/spot",
+        "/agrislam/trajectory/husky",
+        "/agrislam/dead_reckoning/spot",
+        "/agrislam/dead_reckoning/husky",
+    }
+    markers = msgs["/agrislam/plants"].markers
+    assert markers[0].action == 3  # DELETEALL first: the file replaces an older map
+    plants = by_ns(markers, "plants")
+    objects = snap.objects
+    assert [m.id for m in plants] == list(objects.ids)
+    belief = objects.discrete["colour"]
+    for i in (0, 7, 29):
+        m = plants[i]
+        assert m.header.frame_id == "map" and m.type == 2
+        np.testing.assert_allclose([m.pose.position.x, m.pose.position.y], objects.xy[i])
+        top = int(np.argmax(belief[i]))
+        p = belief[i, top]
+        sure = (p - 1 / 7) / (1 - 1 / 7)  # 0 for uniform, 1 for certain
+        r, g, b, _ = to_rgba(COLOURS[top])
+        np.testing.assert_allclose(
+            [m.color.r, m.color.g, m.color.b, m.color.a], [r, g, b, 0.15 + 0.85 * sure]
+        )
+        assert m.scale.x == pytest.approx(0.15 * (0.5 + 0.5 * sure))
+    ellipses = by_ns(markers, "uncertainty")
+    axes, _ = covariance_ellipses(objects.cov)
+    np.testing.assert_allclose([[e.scale.x, e.scale.y] for e in ellipses], axes)
+    labels = by_ns(markers, "labels")
+    assert labels[0].text.startswith(f"{objects.ids[0]} colour: ")
+    rows = by_ns(markers, "rows")
+    assert [(r.points[0].y, r.points[1].y) for r in rows] == [(0.0, 0.0), (1.0, 1.0), (2.0, 2.0)]
+    spot = msgs["/agrislam/trajectory/spot"]
+    traj = snap.trajectories["spot"].poses
+    assert len(spot.poses) == len(traj)
+    last = spot.poses[-1].pose
+    np.testing.assert_allclose([last.position.x, last.position.y], traj[-1, :2])
+    q = last.orientation
+    assert yaw_from_quaternion((q.x, q.y, q.z, q.w)) == pytest.approx(traj[-1, 2])
+    drift = msgs["/agrislam/dead_reckoning/husky"].poses[-1].pose.position
+    np.testing.assert_allclose([drift.x, drift.y], snap.dead_reckoning["husky"].poses[-1, :2])
+
+
+def test_mcap_is_a_plain_ros2_recording(tmp_path: Path, sample_snapshot: MapSnapshot) -> None:
+    from mcap.reader import make_reader
+
+    path = write_map_mcap(sample_snapshot, tmp_path / "map.mcap", labels=False)
+    with path.open("rb") as f:
+        reader = make_reader(f)
+        assert reader.get_header().profile == "ros2"
+        summary = reader.get_summary()
+        kinds = {
+            (c.topic, c.message_encoding, summary.schemas[c.schema_id].encoding)
+            for c in summary.channels.values()
+        }
+    assert ("/agrislam/plants", "cdr", "ros2msg") in kinds
+    markers = read_ros(path)["/agrislam/plants"].markers
+    assert not by_ns(markers, "labels")
+    with pytest.raises(FileExistsError):
+        write_map_mcap(sample_snapshot, path)
+    write_map_mcap(sample_snapshot, path, "length", overwrite=True)
+    assert (
+        by_ns(read_ros(path)["/agrislam/plants"].markers, "labels")[0].text.split()[1] == "length:"
+    )
+
+
+def test_continuous_and_no_attribute(snapshot_factory: Callable[..., MapSnapshot]) -> None:
+    snap = snapshot_factory()
+    style = plant_style(snap, "length")
+    mean, var = snap.objects.continuous["length"]
+    # opacity from how far the std has shrunk below the prior's (uniform on [0, 0.6])
+    sure = np.clip(1 - np.sqrt(var / (0.6**2 / 12)), 0, 1)
+    np.testing.assert_allclose(style.rgba[:, 3], 0.15 + 0.85 * sure)
+    assert style.labels[0] == f"length: {mean[0]:.3g} ± {np.sqrt(var[0]):.2g}"
+    bare = plant_style(snapshot_factory(schema=False))
+    assert bare.attribute is None and bare.labels[0].startswith("h ")
+    with pytest.raises(ValueError, match="'health' is not in the map"):
+        plant_style(snap, "health")
+
+
+# ---------------------------------------------------------------------------- Foxglove
+
+
+def read_foxglove(path: Path) -> dict[str, Any]:
+    """Decode every message with the protobuf schema stored in the MCAP itself."""
+    from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
+    from mcap.reader import make_reader
+
+    out = {}
+    with path.open("rb") as f:
+        for schema, channel, message in make_reader(f).iter_messages():
+            assert schema.encoding == "protobuf" and channel.message_encoding == "protobuf"
+            pool = descriptor_pool.DescriptorPool()
+            for fd in descriptor_pb2.FileDescriptorSet.FromString(schema.data).file:
+                pool.Add(fd)
+            cls = message_factory.GetMessageClass(pool.FindMessageTypeByName(schema.name))
+            out[channel.topic] = (schema.name, cls.FromString(message.data))
+    return out
+
+
+def test_foxglove_scene(tmp_path: Path, sample_snapshot: MapSnapshot) -> None:
+    pytest.importorskip("foxglove")
+    from agrislam.sinks.foxglove import write_foxglove_mcap
+
+    snap = sample_snapshot
+    path = write_foxglove_mcap(snap, tmp_path / "scene.mcap", "size")
+    msgs = read_foxglove(path)
+    assert {topic: name for topic, (name, _) in msgs.items()} == {
+        "/agrislam/plants": "foxglove.SceneUpdate",
+        "/agrislam/rows": "foxglove.SceneUpdate",
+        "/agrislam/interest": "foxglove.Grid",
+        "/agrislam/trajectory/spot": "foxglove.PosesInFrame",
+        "/agrislam/trajectory/husky": "foxglove.PosesInFrame",
+        "/agrislam/dead_reckoning/spot": "foxglove.PosesInFrame",
+        "/agrislam/dead_reckoning/husky": "foxglove.PosesInFrame",
+    }
+    entities = msgs["/agrislam/plants"][1].entities
+    objects = snap.objects
+    assert [e.id for e in entities] == [str(i) for i in objects.ids]
+    style = plant_style(snap, "size")
+    for i in (0, 13):
+        e = entities[i]
+        sphere = e.spheres[0]
+        np.testing.assert_allclose([sphere.pose.position.x, sphere.pose.position.y], objects.xy[i])
+        c = sphere.color
+        np.testing.assert_allclose([c.r, c.g, c.b, c.a], style.rgba[i])
+        meta = {kv.key: kv.value for kv in e.metadata}
+        size = objects.discrete["size"][i]
+        assert meta["size"] == f"small {size[0]:.2f}, medium {size[1]:.2f}, big {size[2]:.2f}"
+        assert meta["n_meas"] == str(objects.n_meas[i]) and "length" in meta and "colour" in meta
+    grid = msgs["/agrislam/interest"][1]
+    surface = snap.interest_surface
+    assert grid.column_count == surface.values.shape[1]
+    values = np.frombuffer(grid.data, dtype="<f4").reshape(surface.values.shape)
+    np.testing.assert_allclose(values, surface.values, rtol=1e-6)
+    assert len(msgs["/agrislam/rows"][1].entities) == 3
+    poses = msgs["/agrislam/trajectory/husky"][1].poses
+    np.testing.assert_allclose(
+        [poses[-1].position.x, poses[-1].position.y], snap.trajectories["husky"].poses[-1, :2]
+    )
+    with pytest.raises(FileExistsError):
+        write_foxglove_mcap(snap, path)  # no silent overwrite
+    write_foxglove_mcap(snap, path, overwrite=True)
