@@ -3,6 +3,7 @@ Noetic), Detection2D + depth through the RGB-D front end, and every kind of bad 
 
 from __future__ import annotations
 
+import sqlite3
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -159,6 +160,7 @@ PLANTS = [
 DET_TOPIC, DEPTH_TOPIC = "/camera/detections", "/camera/aligned_depth_to_color/image_raw"
 INFO_TOPIC, INSTANCE_TOPIC = "/camera/color/camera_info", "/camera/instance/image"
 FRAME = "camera_color_optical_frame"
+CLASS_IDS = {"crop_small": 0, "crop_big": 1, "weed_big": 2}
 
 
 def rgbd_bag(path: Path, make: MessageFactory, storage: str = "mcap") -> None:
@@ -170,7 +172,13 @@ def rgbd_bag(path: Path, make: MessageFactory, storage: str = "mcap") -> None:
     depth[5:25, 5:25] = 0.0
     depth_mm = np.round(depth * 1000).astype(np.uint16)
     boxes = [instance_box(instance, k) for k in (1, 2, 3)]
-    hyps = [[("crop_small", 0.8)], [("weed_big", 0.7), ("crop_big", 0.2)], [("crop_small", 0.9)]]
+    hyps: list[list[tuple[str | int, float]]] = [
+        [("crop_small", 0.8)],
+        [("weed_big", 0.7), ("crop_big", 0.2)],
+        [("crop_small", 0.9)],
+    ]
+    if make.layout == "noetic":  # int64 class ids, named through class_names
+        hyps = [[(CLASS_IDS[c], p) for c, p in h] for h in hyps]  # type: ignore[index]
 
     def frame(t: float) -> Any:
         return make.detection_array(
@@ -197,10 +205,12 @@ def rgbd_bag(path: Path, make: MessageFactory, storage: str = "mcap") -> None:
         write("/odom", ODOMETRY, odom(make, 0.6, 0.2, 0.0, 0.0), 0.6)
 
 
-@pytest.mark.parametrize("layout", ["humble", "foxy"])
+@pytest.mark.parametrize("layout", ["humble", "foxy", "noetic"])
 def test_detection2d_with_depth_through_the_front_end(tmp_path: Path, layout: str) -> None:
-    rgbd_bag(tmp_path / "rgbd.mcap", MessageFactory(layout))  # type: ignore[arg-type]
-    got, report = read(tmp_path / "rgbd.mcap", CROPS)
+    path = tmp_path / ("rgbd.bag" if layout == "noetic" else "rgbd.mcap")
+    rgbd_bag(path, MessageFactory(layout))  # type: ignore[arg-type]
+    names = {str(i): c for c, i in CLASS_IDS.items()} if layout == "noetic" else {}
+    got, report = read(path, CROPS, class_names=names)
     assert report.roles["depth"] == [DEPTH_TOPIC] and report.roles["instance"] == [INSTANCE_TOPIC]
     assert kinds(report) == [
         ("bad_camera_info", INFO_TOPIC, 0.05),
@@ -223,6 +233,25 @@ def test_detection2d_with_depth_through_the_front_end(tmp_path: Path, layout: st
     assert weed.attributes["type"] == DiscreteMeasurement("weed", 0.7)
     assert np.linalg.eigvalsh(crop.cov)[1] > 5 * np.linalg.eigvalsh(crop.cov)[0]  # depth >> lateral
     assert [r.t for r in got if isinstance(r, Odometry)] == [0.0, 0.6]
+
+
+def test_bag_without_message_definitions_needs_its_layout(tmp_path: Path) -> None:
+    """rosbag2 sqlite3 bags of Humble and before carry no definitions: the configured
+    layout decodes them."""
+    make = MessageFactory("foxy")
+    det = make.detection3d(0.25, "base_link", (1.0, 0.0, 0.0), [("crop_small", 0.9)], ident="x1")
+    with bag(tmp_path / "old", make, "sqlite3") as write:
+        write("/odom", ODOMETRY, odom(make, 0.0, 0.0, 0.0, 0.0), 0.0)
+        write("/det", DETECTION3D_ARRAY, make.detection_array(0.25, "base_link", [det]), 0.25)
+    with sqlite3.connect(next((tmp_path / "old").glob("*.db3"))) as db:
+        db.execute("DELETE FROM message_definitions")
+    got, report = read(tmp_path / "old")
+    assert kinds(report) == [("undecodable", "/det", 0.25)]
+    assert "set vision_msgs_layout" in report.issues[0].message
+    got, report = read(tmp_path / "old", vision_msgs_layout="foxy")
+    assert report.issues == []
+    (obj,) = got[1].objects  # type: ignore[union-attr]
+    assert (obj.label, obj.label_p, obj.truth_id) == ("crop_small", 0.9, "x1")
 
 
 def test_detection2d_without_instance_image_uses_the_box(tmp_path: Path) -> None:

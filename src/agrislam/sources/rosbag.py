@@ -49,6 +49,7 @@ from typing import Any, Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 from rosbags.highlevel import AnyReader, AnyReaderError
+from rosbags.interfaces import MessageDefinitionFormat
 
 from agrislam.config import AgrislamConfig, FieldSchema
 from agrislam.perception.camera import (
@@ -504,7 +505,15 @@ class _BagReader:
                     return self.store.deserialize_cdr(raw, conn.msgtype)
                 return self.store.deserialize_ros1(raw, conn.msgtype)
             except Exception:
-                raise _SkipError("undecodable", f"cannot decode {conn.msgtype}: {err}") from None
+                hint = ""
+                if conn.msgdef.format == MessageDefinitionFormat.NONE:
+                    hint = (
+                        f" (the bag has no definition of it; decoded with the "
+                        f"{self.bag.vision_msgs_layout!r} layout: set vision_msgs_layout)"
+                    )
+                raise _SkipError(
+                    "undecodable", f"cannot decode {conn.msgtype}: {err}{hint}"
+                ) from None
 
     def _dispatch(self, topic: str, msg: Any, logtime: int) -> None:
         role = self.role_of[topic]
