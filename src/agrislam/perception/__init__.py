@@ -1,0 +1,24 @@
+"""RGB-D to detections (sec. 2.3, App. A): camera model, robust mask depth, label map,
+length from the box, the YOLOv8-seg ONNX adapter (optional onnxruntime) and the front end
+that turns one frame into `records.Detections`."""
+
+from agrislam.perception.camera import PinholeCamera, camera_mount
+from agrislam.perception.config import PerceptionConfig
+from agrislam.perception.detector import FrameResult, ImageDetection, RgbdDetector
+from agrislam.perception.label_map import LabelMap, UnknownLabelError
+from agrislam.perception.length import length_from_box
+from agrislam.perception.mask_depth import DepthRejectedError, estimate_position
+
+__all__ = [
+    "DepthRejectedError",
+    "FrameResult",
+    "ImageDetection",
+    "LabelMap",
+    "PerceptionConfig",
+    "PinholeCamera",
+    "RgbdDetector",
+    "UnknownLabelError",
+    "camera_mount",
+    "estimate_position",
+    "length_from_box",
+]
