@@ -253,6 +253,12 @@ class SlamConfig(_Strict):
     robust_k: float = Field(1.345, gt=0.0, description="kernel width in standard deviations")
     relinearize_threshold: float = Field(0.1, gt=0.0)
     relinearize_skip: int = Field(10, ge=1)
+    window: int = Field(
+        100, ge=0, description="steps per iSAM2 submap (bounds a step's cost); 0 = plain iSAM2"
+    )
+    carry_steps: int = Field(
+        10, ge=0, description="objects seen this many steps before a submap ends stay in the next"
+    )
 
 
 class RowsConfig(_Strict):
@@ -267,12 +273,25 @@ class RowsConfig(_Strict):
     max_offset: float = Field(
         0.2, gt=0.0, description="m; a plant farther from every row gets no row constraint"
     )
+    min_detections: int = Field(
+        3, ge=1, description="frames an object is seen in before it may join a row"
+    )
+    angle_prior_sigma_deg: float = Field(
+        1.0, ge=0.0, description="std of a given row_angle_deg as a prior; 0 fixes the angle"
+    )
 
 
 class MaintenanceConfig(_Strict):
     """Merging and pruning (sec. 2.6.3)."""
 
     merge: bool = True
+    merge_fraction: float = Field(
+        0.5,
+        gt=0.0,
+        le=1.0,
+        description="merge objects closer than this fraction of d_inter (sec. 2.6.3 uses 1: "
+        "with plants spaced at about d_inter that merges true neighbours)",
+    )
     prune: bool = True
     prune_max_meas: int = Field(1, ge=0, description="objects seen at most this often may go")
     prune_min_interest: float = Field(0.6, ge=0.0, le=1.0)

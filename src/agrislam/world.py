@@ -148,6 +148,10 @@ class WorldModel:
             self.schema = meta.schema
             self.beliefs = BeliefTable(self.schema, self.config.semantics)
         self.anchor = meta.anchor or self.anchor
+        association = self.config.association
+        if meta.field is not None and meta.field.min_plant_distance:
+            if "d_inter" not in association.model_fields_set:  # the survey knows its field
+                association.d_inter = meta.field.min_plant_distance
         if meta.field is not None and self.rows is not None:
             self.rows.use_prior(meta.field)
         for name, start in meta.robots.items():
@@ -277,7 +281,7 @@ class WorldModel:
                 self.index,
                 self.backend.object_positions,
                 self.beliefs.n_meas,
-                self.config.association.d_inter,
+                cfg.merge_fraction * self.config.association.d_inter,
             )
             for keep, drop in pairs:
                 self.beliefs.fuse(keep, drop)

@@ -1,0 +1,160 @@
+"""The world model on hand-made surveys: association, new objects, several robots, merge,
+prune, pure geometry, and bad input kept out without losing the frame."""
+
+import numpy as np
+import pytest
+
+from agrislam.config import AgrislamConfig
+from agrislam.records import (
+    Detection,
+    Detections,
+    DiscreteMeasurement,
+    FieldPrior,
+    Meta,
+    Odometry,
+    RobotStart,
+)
+from agrislam.world import WorldModel
+
+PLANTS = np.array([[1.0, 0.0], [1.5, 0.0], [2.0, 0.0], [1.0, 1.0], [1.5, 1.0], [2.0, 1.0]])
+COLOURS = ["red", "blue", "green", "yellow", "pink", "cyan"]
+COV = np.diag([0.01, 0.002])
+
+
+def config(**sections) -> AgrislamConfig:
+    base = {"schema": "colour_size", "rows": {"enabled": False}}
+    base.update(sections)
+    return AgrislamConfig.model_validate(base)
+
+
+def seen_from(pose: np.ndarray, plants: np.ndarray, colours=COLOURS, max_range=2.5):
+    """Perfect detections of the plants within range, in the robot frame."""
+    c, s = np.cos(pose[2]), np.sin(pose[2])
+    rel = (plants - pose[:2]) @ np.array([[c, -s], [s, c]])
+    return tuple(
+        Detection(xy=p, cov=COV, attributes={"colour": DiscreteMeasurement(col, 0.9)})
+        for p, col in zip(rel, colours, strict=True)
+        if 0 < p[0] < max_range
+    )
+
+
+def drive(world: WorldModel, robot: str, poses: np.ndarray, t0: float = 0.0, plants=PLANTS):
+    """Odometry along `poses` and a frame of detections at each; returns step reports."""
+    reports = []
+    for k, pose in enumerate(poses):
+        t = t0 + k
+        if k:
+            c, s = np.cos(poses[k - 1][2]), np.sin(poses[k - 1][2])
+            d = pose[:2] - poses[k - 1][:2]
+            delta = np.array([c * d[0] + s * d[1], -s * d[0] + c * d[1], pose[2] - poses[k - 1][2]])
+            world.process(Odometry(t, robot, delta=delta, cov=np.diag([1e-4, 1e-4, 1e-5])))
+        reports.append(world.process(Detections(t, robot, seen_from(pose, plants))))
+    return reports
+
+
+def straight(x0: float, x1: float, y: float, n: int) -> np.ndarray:
+    return np.column_stack([np.linspace(x0, x1, n), np.full(n, y), np.zeros(n)])
+
+
+def test_each_plant_becomes_one_object_seen_again_and_again():
+    world = WorldModel(config())
+    world.process(Meta(robots={"r1": RobotStart(np.array([0.0, 0.5, 0.0]), np.full(3, 1e-3))}))
+    reports = drive(world, "r1", straight(0.0, 0.8, 0.5, 5))
+    snap = world.snapshot()
+    assert len(snap.objects) == len(PLANTS)
+    assert np.all(snap.objects.n_meas == 5)
+    # the same plant keeps its object from frame to frame
+    assert all(np.array_equal(r.object_ids, reports[0].object_ids) for r in reports)
+    d = np.linalg.norm(snap.objects.xy[:, None] - PLANTS[None], axis=2).min(axis=1)
+    assert d.max() < 0.02
+    colour = snap.objects.discrete["colour"]
+    assert colour.max(axis=1).min() > 0.99  # five measurements at p = 0.9
+
+
+def test_a_detection_far_from_every_object_starts_a_new_one():
+    world = WorldModel(config())
+    drive(world, "r1", straight(0.0, 0.2, 0.5, 2))
+    extra = Detection(xy=np.array([2.3, -1.4]), cov=COV)
+    report = world.process(
+        Detections(2.0, "r1", (*seen_from(np.array([0.2, 0.5, 0.0]), PLANTS), extra))
+    )
+    assert len(report.new_ids) == 1
+    assert len(world.active_ids()) == len(PLANTS) + 1
+
+
+def test_two_robots_feed_one_map():
+    world = WorldModel(config())
+    world.process(
+        Meta(
+            robots={
+                "a": RobotStart(np.array([0.0, 0.5, 0.0]), np.full(3, 1e-3)),
+                "b": RobotStart(np.array([0.2, 0.5, 0.0]), np.full(3, 1e-3)),
+            }
+        )
+    )
+    drive(world, "a", straight(0.0, 0.4, 0.5, 3))
+    drive(world, "b", straight(0.2, 0.6, 0.5, 3), t0=10.0)
+    snap = world.snapshot()
+    assert len(snap.objects) == len(PLANTS)
+    assert np.all(snap.objects.n_meas == 6)
+    assert set(snap.trajectories) == {"a", "b"}
+
+
+def test_the_same_plant_twice_in_one_frame_is_merged():
+    world = WorldModel(config())
+    drive(world, "r1", straight(0.0, 0.2, 0.5, 2))
+    frame = seen_from(np.array([0.3, 0.5, 0.0]), PLANTS)
+    twin = Detection(xy=frame[0].xy + np.array([0.05, 0.02]), cov=COV)
+    world.process(Odometry(2.0, "r1", delta=np.array([0.1, 0.0, 0.0])))
+    report = world.process(Detections(2.0, "r1", (*frame, twin)))
+    assert len(report.maintenance.merged) == 1
+    assert len(world.active_ids()) == len(PLANTS)
+    # the detection's object id resolves to the surviving object
+    assert report.object_ids[-1] == report.object_ids[0]
+
+
+def test_a_one_off_uncertain_detection_is_pruned_after_its_grace_period():
+    cfg = config(maintenance={"prune_grace_s": 2.0, "prune_min_interest": 0.6})
+    world = WorldModel(cfg)
+    ghost = Detection(xy=np.array([1.2, -1.5]), cov=COV)  # no semantics: h = 0.5 ... 1
+    world.process(Detections(0.0, "r1", (*seen_from(np.zeros(3), PLANTS), ghost)))
+    drive(world, "r1", straight(0.0, 0.6, 0.0, 6), t0=1.0)
+    snap = world.snapshot()
+    assert len(snap.objects) == len(PLANTS)
+    assert not np.any(np.linalg.norm(snap.objects.xy - [1.2, -1.5], axis=1) < 0.3)
+
+
+def test_pure_geometry_without_a_schema():
+    world = WorldModel(AgrislamConfig.model_validate({"rows": {"enabled": False}}))
+    drive(world, "r1", straight(0.0, 0.4, 0.5, 3))
+    snap = world.snapshot()
+    assert len(snap.objects) == len(PLANTS)
+    assert snap.objects.discrete == {}
+
+
+def test_meta_schema_and_field_prior_are_taken():
+    world = WorldModel(AgrislamConfig.model_validate({"rows": {"enabled": False}}))
+    from agrislam.config import FieldSchema
+
+    world.process(Meta(schema=FieldSchema.preset("crops_weeds"), field=FieldPrior(1.0, 0.3)))
+    assert world.schema is not None and "health" in world.schema.attributes
+
+
+def test_a_measurement_outside_the_schema_is_dropped_and_the_detection_kept():
+    world = WorldModel(config())
+    bad = Detection(
+        xy=np.array([1.0, -0.5]), cov=COV, attributes={"colour": DiscreteMeasurement("violet", 0.9)}
+    )
+    world.process(Detections(0.0, "r1", (bad,)))
+    assert len(world.active_ids()) == 1
+    assert any("colour" in issue for issue in world.issues)
+
+
+@pytest.mark.parametrize("backend", ["incremental", "batch"])
+def test_both_back_ends_build_the_same_map(backend):
+    world = WorldModel(config(slam={"backend": backend}))
+    world.process(Meta(robots={"r1": RobotStart(np.array([0.0, 0.5, 0.0]), np.full(3, 1e-3))}))
+    drive(world, "r1", straight(0.0, 0.8, 0.5, 5))
+    snap = world.snapshot()
+    d = np.linalg.norm(snap.objects.xy[:, None] - PLANTS[None], axis=2).min(axis=1)
+    assert len(snap.objects) == len(PLANTS) and d.max() < 0.02
