@@ -233,8 +233,19 @@ class AssociationConfig(_Strict):
     """Data association (sec. 2.4)."""
 
     w_sem: float = Field(0.3, ge=0.0, le=1.0, description="semantic weight w_sem")
-    d_inter: float = Field(0.4, gt=0.0, description="minimum distance between plants, m")
+    d_inter: float = Field(
+        0.2,
+        gt=0.0,
+        description="m, the distance scale of sec. 2.4 and the merge distance of sec. 2.6.3; "
+        "a survey's field prior sets it to half its minimum plant distance, the midpoint "
+        "between neighbours, unless given here",
+    )
     use_semantics: bool = True
+    detection_covariance: bool = Field(
+        False,
+        description="use K_n + R_m (object and detection covariance) in the distance term "
+        "instead of the paper's K_n alone",
+    )
     gate_sigma_max: float = Field(
         1.0, gt=0.0, description="m; largest object position sigma the spatial gate allows for"
     )
@@ -254,10 +265,10 @@ class SlamConfig(_Strict):
     relinearize_threshold: float = Field(0.1, gt=0.0)
     relinearize_skip: int = Field(10, ge=1)
     window: int = Field(
-        100, ge=0, description="steps per iSAM2 submap (bounds a step's cost); 0 = plain iSAM2"
-    )
-    carry_steps: int = Field(
-        10, ge=0, description="objects seen this many steps before a submap ends stay in the next"
+        100,
+        ge=0,
+        description="steps between keyframes; older poses and objects are folded onto the "
+        "keyframes so a step's cost stays bounded; 0 = plain iSAM2 over the whole graph",
     )
 
 
@@ -285,13 +296,6 @@ class MaintenanceConfig(_Strict):
     """Merging and pruning (sec. 2.6.3)."""
 
     merge: bool = True
-    merge_fraction: float = Field(
-        0.5,
-        gt=0.0,
-        le=1.0,
-        description="merge objects closer than this fraction of d_inter (sec. 2.6.3 uses 1: "
-        "with plants spaced at about d_inter that merges true neighbours)",
-    )
     prune: bool = True
     prune_max_meas: int = Field(1, ge=0, description="objects seen at most this often may go")
     prune_min_interest: float = Field(0.6, ge=0.0, le=1.0)

@@ -1,0 +1,105 @@
+"""The graph back end interface (sec. 2.6): measurement types, the protocol the world model
+calls, and `make_backend`, which builds the configured back end."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+
+from agrislam.config import RowsConfig, SlamConfig
+from agrislam.geometry.noise import detection_covariance
+
+__all__ = [
+    "GraphBackend",
+    "RangeBearing",
+    "RelativePosition",
+    "detection_covariance",
+    "make_backend",
+]
+
+
+@dataclass(frozen=True)
+class RelativePosition:
+    """An object at `xy` in the robot frame (x forward, y left) with a 2x2 covariance."""
+
+    xy: np.ndarray
+    cov: np.ndarray
+
+
+@dataclass(frozen=True)
+class RangeBearing:
+    """An object at `range` m and `bearing` rad (from the robot's x axis, left positive)."""
+
+    range: float
+    bearing: float
+    sigma_range: float
+    sigma_bearing: float
+
+
+Measurement = RelativePosition | RangeBearing
+
+
+@runtime_checkable
+class GraphBackend(Protocol):
+    """A pose-and-object graph: robot chains, objects, detections, rows; solved per step."""
+
+    def add_robot(
+        self,
+        robot: str,
+        start_pose: np.ndarray | None = None,
+        start_sigma: np.ndarray | None = None,
+        t: float | None = None,
+    ) -> None: ...
+
+    def add_odometry(self, robot: str, t: float, delta: np.ndarray, cov: np.ndarray) -> None: ...
+
+    def current_pose(self, robot: str) -> np.ndarray: ...
+
+    def add_object(self, object_id: int, xy: np.ndarray) -> None: ...
+
+    def add_observation(self, robot: str, object_id: int, measurement: Measurement) -> None: ...
+
+    def update(self) -> None: ...
+
+    def object_ids(self) -> np.ndarray: ...
+
+    def object_positions(self, object_ids: np.ndarray) -> np.ndarray: ...
+
+    def object_covariances(self, object_ids: np.ndarray) -> np.ndarray: ...
+
+    def trajectory(self, robot: str) -> tuple[np.ndarray, np.ndarray]: ...
+
+    def merge_objects(self, keep: int, drop: int) -> None: ...
+
+    def remove_object(self, object_id: int) -> None: ...
+
+    # rows (sec. 2.6.2), driven by rows.RowTracker
+    def add_row(self, row: int, point: np.ndarray, angle: float) -> None: ...
+
+    def add_row_constraint(self, object_id: int, row: int) -> None: ...
+
+    def add_row_spacing(self, row_a: int, row_b: int, distance: float) -> None: ...
+
+    def remove_row_constraint(self, object_id: int) -> None: ...
+
+    def remove_row(self, row: int) -> None: ...
+
+    def row_points(self, rows: np.ndarray) -> np.ndarray: ...
+
+    def rows_of(self, object_ids: np.ndarray) -> np.ndarray: ...
+
+    def refine(self) -> None: ...
+
+
+def make_backend(slam: SlamConfig, rows: RowsConfig) -> GraphBackend:
+    """The back end `slam.backend` names: "incremental" (windowed iSAM2, the default) or
+    "batch" (the paper's whole-graph LM/Dogleg every step)."""
+    if slam.backend == "batch":
+        from agrislam.geometry.batch import BatchBackend
+
+        return BatchBackend(slam, rows)
+    from agrislam.geometry.incremental import IncrementalBackend
+
+    return IncrementalBackend(slam, rows)

@@ -1,0 +1,196 @@
+"""The whole survey graph as plain records (sec. 2.6): robot chains, objects, rows and every
+factor between them. Solvers hold their own GTSAM copies; this record is what merges
+rewrite, the global refinement solves and g2o files hold."""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+
+import gtsam
+import numpy as np
+
+from agrislam.config import SlamConfig
+from agrislam.geometry.noise import gaussian, one_direction, robust, row_direction, row_normal
+
+# key layout: one symbol letter per node kind; robot r's pose i is x(r * POSES_PER_ROBOT + i)
+POSES_PER_ROBOT = 1 << 40
+POSE, OBJECT, ROW = "x", "l", "r"
+
+# factor kinds
+PRIOR_POSE = "prior_pose"  # keys (pose,), value (3,) pose, cov 3x3
+ODOMETRY = "odometry"  # keys (pose_a, pose_b), value (3,) delta in a's frame, cov 3x3
+DETECTION = "detection"  # keys (pose, object), value (bearing, range), cov 2x2 of those
+ROW_ANCHOR = "row_anchor"  # keys (row,), value (2,) point, cov: along-row sigma (gauge only)
+ROW_MEMBER = "row_member"  # keys (row, object), value angle, cov cross-row sigma
+ROW_SPACING = "row_spacing"  # keys (row_a, row_b), value (angle, distance), cov sigma
+
+
+def pose_key(robot_index: int, i: int) -> int:
+    return gtsam.symbol(POSE, robot_index * POSES_PER_ROBOT + i)
+
+
+def object_key(object_id: int) -> int:
+    return gtsam.symbol(OBJECT, int(object_id))
+
+
+def row_key(row: int) -> int:
+    return gtsam.symbol(ROW, int(row))
+
+
+def key_kind(key: int) -> str:
+    return chr(gtsam.Symbol(key).chr())
+
+
+def key_index(key: int) -> int:
+    return int(gtsam.Symbol(key).index())
+
+
+@dataclass(slots=True)
+class Factor:
+    kind: str
+    keys: tuple[int, ...]
+    value: np.ndarray
+    cov: np.ndarray | float
+
+
+@dataclass(slots=True)
+class RobotChain:
+    index: int
+    times: list[float] = field(default_factory=list)
+    keys: list[int] = field(default_factory=list)
+
+
+@dataclass(slots=True)
+class RowNode:
+    point: np.ndarray
+    angle: float
+
+
+class SurveyGraph:
+    """Records of nodes and factors; factor ids are stable, removed ones are gone."""
+
+    def __init__(self) -> None:
+        self.robots: dict[str, RobotChain] = {}
+        self.objects: dict[int, np.ndarray] = {}  # id -> initial map-frame position
+        self.rows: dict[int, RowNode] = {}
+        self.factors: dict[int, Factor] = {}
+        self.factors_of: dict[int, set[int]] = {}  # node key -> ids of its factors
+        self.row_of: dict[int, int] = {}  # object id -> row id of its row constraint
+        self._next_factor = 0
+
+    # ---------------------------------------------------------------- nodes
+    def robot(self, robot: str) -> RobotChain:
+        try:
+            return self.robots[robot]
+        except KeyError:
+            raise KeyError(f"robot {robot!r} was never added (add_robot first)") from None
+
+    def add_robot(self, robot: str, t: float) -> RobotChain:
+        if robot in self.robots:
+            raise ValueError(f"robot {robot!r} is already in the graph")
+        chain = RobotChain(index=len(self.robots))
+        self.robots[robot] = chain
+        self.add_pose(chain, t)
+        return chain
+
+    def add_pose(self, chain: RobotChain, t: float) -> int:
+        key = pose_key(chain.index, len(chain.keys))
+        chain.times.append(float(t))
+        chain.keys.append(key)
+        return key
+
+    def add_object(self, object_id: int, xy: np.ndarray) -> int:
+        if object_id in self.objects:
+            raise ValueError(f"object {object_id} already exists")
+        if object_id < 0:
+            raise ValueError(f"object id must be non-negative, got {object_id}")
+        self.objects[object_id] = np.asarray(xy, dtype=float).copy()
+        return object_key(object_id)
+
+    def require_object(self, object_id: int) -> int:
+        if object_id not in self.objects:
+            raise KeyError(f"object {object_id} is not in the graph")
+        return object_key(object_id)
+
+    def require_row(self, row: int) -> int:
+        if row not in self.rows:
+            raise KeyError(f"row {row} is not in the graph")
+        return row_key(row)
+
+    # -------------------------------------------------------------- factors
+    def add_factor(self, factor: Factor) -> int:
+        fid = self._next_factor
+        self._next_factor += 1
+        self.factors[fid] = factor
+        for key in factor.keys:
+            self.factors_of.setdefault(key, set()).add(fid)
+        if factor.kind == ROW_MEMBER:
+            self.row_of[key_index(factor.keys[1])] = key_index(factor.keys[0])
+        return fid
+
+    def remove_factor(self, fid: int) -> Factor:
+        factor = self.factors.pop(fid)
+        for key in factor.keys:
+            self.factors_of[key].discard(fid)
+        if factor.kind == ROW_MEMBER:
+            self.row_of.pop(key_index(factor.keys[1]), None)
+        return factor
+
+    def factor_ids(self, key: int) -> list[int]:
+        return sorted(self.factors_of.get(key, ()))
+
+    def row_member_factor(self, object_id: int) -> int | None:
+        if object_id not in self.row_of:
+            return None
+        okey = object_key(object_id)
+        return next(f for f in self.factors_of[okey] if self.factors[f].kind == ROW_MEMBER)
+
+    def remove_object(self, object_id: int) -> list[int]:
+        """Drop an object and its factors; returns the removed factor ids."""
+        okey = self.require_object(object_id)
+        fids = self.factor_ids(okey)
+        for fid in fids:
+            self.remove_factor(fid)
+        del self.objects[object_id]
+        self.factors_of.pop(okey, None)
+        return fids
+
+    @staticmethod
+    def rekey(factor: Factor, old: int, new: int) -> Factor:
+        keys = tuple(new if k == old else k for k in factor.keys)
+        return Factor(factor.kind, keys, factor.value, factor.cov)
+
+    def all_keys(self) -> Iterable[int]:
+        for chain in self.robots.values():
+            yield from chain.keys
+        yield from (object_key(i) for i in self.objects)
+        yield from (row_key(r) for r in self.rows)
+
+
+def make_factor(factor: Factor, slam: SlamConfig) -> gtsam.NonlinearFactor:
+    """The GTSAM factor of a record."""
+    kind, keys, value, cov = factor.kind, factor.keys, factor.value, factor.cov
+    if kind == ODOMETRY:
+        return gtsam.BetweenFactorPose2(keys[0], keys[1], gtsam.Pose2(*value), gaussian(cov))
+    if kind == DETECTION:
+        # relative position as bearing-range: sec. 2.6, covariance along/across the ray
+        return gtsam.BearingRangeFactor2D(
+            keys[0], keys[1], gtsam.Rot2(value[0]), value[1], robust(slam, gaussian(cov))
+        )
+    if kind == PRIOR_POSE:
+        return gtsam.PriorFactorPose2(keys[0], gtsam.Pose2(*value), gaussian(cov))
+    if kind == ROW_MEMBER:
+        # sec. 2.6.2: plant to row node, across the row only
+        noise = one_direction(row_normal(float(value[0])), float(cov))
+        return gtsam.BetweenFactorPoint2(keys[0], keys[1], np.zeros(2), noise)
+    if kind == ROW_SPACING:
+        # sec. 2.6.2: neighbouring row nodes are `distance` apart across the rows
+        normal = row_normal(float(value[0]))
+        noise = one_direction(normal, float(cov))
+        return gtsam.BetweenFactorPoint2(keys[0], keys[1], value[1] * normal, noise)
+    if kind == ROW_ANCHOR:
+        # fixes where along its line a row node sits (gauge only, no effect on plants)
+        along = row_direction(float(value[2]))
+        return gtsam.PriorFactorPoint2(keys[0], value[:2].copy(), one_direction(along, float(cov)))
+    raise ValueError(f"unknown factor kind {kind!r}")

@@ -1,0 +1,427 @@
+"""Incremental back end: iSAM2 with keyframes, so that a step costs about the same on a
+large field as on a small one (sec. 2.6; DESIGN.md "Geometry back end").
+
+Plain iSAM2 (`slam.window = 0`) re-eliminates, every step, the part of the Bayes tree
+between the plants seen again and the root: on a lawnmower survey about one pass of the
+field, so a step costs more as the rows get longer (benchmarks/bench_geometry.py). With a
+window, every `window` steps the recent part of the graph is folded away:
+
+- each robot's latest pose becomes a *keyframe*; keyframes and row nodes stay in the
+  graph for good;
+- every other pose and object of the window is marginalised out of the window's
+  factors, exactly at the current linearisation point: what they said about the
+  keyframes and rows they touched becomes one dense factor between those;
+- an object keeps its position relative to a keyframe (with the marginal covariance of
+  that relative position); its estimate moves with the keyframe, so a loop closure
+  anywhere corrects the whole map. Seen again, it comes back into the graph tied to that
+  keyframe and gets its new measurements.
+
+`refine()` solves the whole recorded graph (the paper's batch solve, warm-started) and
+carries on from that solution; call it at the end of a survey, or when time allows.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import gtsam
+import numpy as np
+
+from agrislam.config import RowsConfig, SlamConfig
+from agrislam.geometry.base import BackendBase, pose_array
+from agrislam.geometry.batch import insert_value, solve, value_array
+from agrislam.geometry.graph import POSE, ROW, key_kind, make_factor
+from agrislam.geometry.noise import gaussian, relative_to_range_bearing
+from agrislam.geometry.se2 import between, compose, rotation
+
+# conditioning on a keyframe: its prior (m, rad); others only kept from floating away
+FIXED_SIGMA = 1e-4
+FREE_SIGMA = 10.0
+
+
+def isam2(slam: SlamConfig) -> gtsam.ISAM2:
+    params = gtsam.ISAM2Params()
+    params.setRelinearizeThreshold(slam.relinearize_threshold)
+    params.relinearizeSkip = slam.relinearize_skip
+    return gtsam.ISAM2(params)
+
+
+@dataclass(slots=True)
+class Anchored:
+    """A retired object: at `z` in keyframe `keyframe`'s frame, `cov` the 2x2 marginal
+    covariance of z (from the joint marginal of keyframe and object)."""
+
+    keyframe: int
+    z: np.ndarray
+    cov: np.ndarray
+
+
+def point_in_frame(pose: np.ndarray, xy: np.ndarray) -> np.ndarray:
+    """Map point xy in the frame of pose: R^T (xy - t)."""
+    return rotation(pose[2]).T @ (np.asarray(xy, dtype=float) - pose[:2])
+
+
+def conditioned(
+    graph: gtsam.NonlinearFactorGraph, point: gtsam.Values, fixed: int, free: list[int]
+) -> gtsam.NonlinearFactorGraph:
+    """The graph with node `fixed` held at its value (a tight prior) and the other
+    `free` nodes given only a weak prior, so that it can be solved on its own."""
+    out = graph.clone()
+    for key in free:
+        sigma = FIXED_SIGMA if key == fixed else FREE_SIGMA
+        if key_kind(key) == POSE:
+            noise = gtsam.noiseModel.Isotropic.Sigma(3, sigma)
+            out.push_back(gtsam.PriorFactorPose2(key, point.atPose2(key), noise))
+        else:
+            noise = gtsam.noiseModel.Isotropic.Sigma(2, sigma)
+            out.push_back(gtsam.PriorFactorPoint2(key, point.atPoint2(key), noise))
+    return out
+
+
+def anchor_factor(anchor: Anchored, key: int) -> gtsam.NonlinearFactor:
+    """The retired object's relative position as a factor between its keyframe and it."""
+    bearing, rng, cov_br = relative_to_range_bearing(anchor.z, anchor.cov)
+    return gtsam.BearingRangeFactor2D(
+        anchor.keyframe, key, gtsam.Rot2(bearing), rng, gaussian(cov_br)
+    )
+
+
+@dataclass(slots=True)
+class _Pending:
+    """A factor for the next update: from the record (`fid`) or an anchor of `anchor_of`."""
+
+    factor: gtsam.NonlinearFactor
+    keys: tuple[int, ...]
+    fid: int | None = None
+    anchor_of: int | None = None
+    anchor: Anchored | None = None
+
+
+class IncrementalBackend(BackendBase):
+    """iSAM2 with keyframes every `slam.window` steps; `window = 0` is plain iSAM2."""
+
+    def __init__(self, slam: SlamConfig, rows: RowsConfig) -> None:
+        super().__init__(slam, rows)
+        self.window = slam.window
+        self._isam = isam2(slam)
+        self._live: set[int] = set()  # keys in the iSAM2 graph (solved or pending)
+        self._permanent: set[int] = set()  # keyframes and row nodes
+        self._pending: list[_Pending | None] = []
+        self._pending_at: dict[int, int] = {}  # fid -> position in self._pending
+        self._pending_values = gtsam.Values()
+        self._pending_guess: dict[int, np.ndarray] = {}
+        self._removals: list[int] = []
+        self._slot: dict[int, int] = {}  # fid -> iSAM2 factor slot
+        self._slot_keys: dict[int, tuple[int, ...]] = {}  # live slot -> its keys
+        self._anchor_slot: dict[int, list[tuple[int, Anchored]]] = {}  # key -> live anchors
+        self._guess: dict[int, np.ndarray] = {}  # nodes no factor has used yet
+        self._anchored: dict[int, Anchored] = {}  # retired objects
+        self._retired_pose: dict[int, tuple[int, np.ndarray]] = {}  # key -> (keyframe, rel)
+        self._keyframes: dict[str, list[int]] = {}  # robot -> its keyframes, oldest first
+        self._last_seen: dict[int, tuple[str, int]] = {}  # object key -> (robot, step)
+        self._global: gtsam.ISAM2 | None = None
+        self._cov_cache: dict[int, np.ndarray] = {}
+        self._step = 0
+        self._window_start = 0
+        self.rolls = 0
+
+    # ------------------------------------------------------------ solver hooks
+    def _insert(self, key: int, value: np.ndarray) -> None:
+        self._guess[key] = np.asarray(value, dtype=float)
+        if key_kind(key) == ROW:
+            self._permanent.add(key)  # rows span the field: never folded away
+
+    def add_robot(self, robot: str, start_pose=None, start_sigma=None, t=None) -> None:
+        super().add_robot(robot, start_pose, start_sigma, t)
+        first = self.graph.robot(robot).keys[0]
+        self._permanent.add(first)
+        self._keyframes[robot] = [first]
+
+    def _enter(self, key: int) -> None:
+        """Bring a node into the iSAM2 graph: new, or retired and tied to its keyframe."""
+        if key in self._live:
+            return
+        if key in self._guess:
+            value = self._guess.pop(key)
+        elif key in self._anchored:
+            anchor = self._anchored.pop(key)
+            value = compose(self._estimate(anchor.keyframe), np.r_[anchor.z, 0.0])[:2]
+            self._push_anchor(key, anchor)
+        else:
+            raise KeyError(f"node {gtsam.DefaultKeyFormatter(key)} has no estimate to enter with")
+        insert_value(self._pending_values, key, value)
+        self._pending_guess[key] = value
+        self._live.add(key)
+
+    def _push_anchor(self, key: int, anchor: Anchored) -> None:
+        factor = anchor_factor(anchor, key)
+        self._push(_Pending(factor, (anchor.keyframe, key), anchor_of=key, anchor=anchor))
+
+    def _push(self, pending: _Pending) -> None:
+        if pending.fid is not None:
+            self._pending_at[pending.fid] = len(self._pending)
+        self._pending.append(pending)
+
+    def _add(self, fid: int) -> None:
+        factor = self.graph.factors[fid]
+        for key in factor.keys:
+            self._enter(key)
+        if factor.keys and key_kind(factor.keys[0]) == POSE and len(factor.keys) == 2:
+            obj = factor.keys[1]
+            if key_kind(obj) != POSE:
+                self._last_seen[obj] = (self._robot_of(factor.keys[0]), self._step)
+        self._push(_Pending(make_factor(factor, self.slam), factor.keys, fid=fid))
+
+    def _robot_of(self, pose: int) -> str:
+        index = gtsam.Symbol(pose).index() // (1 << 40)
+        return next(name for name, chain in self.graph.robots.items() if chain.index == index)
+
+    def _remove(self, fid: int) -> None:
+        if fid in self._pending_at:
+            self._pending[self._pending_at.pop(fid)] = None
+        elif fid in self._slot:
+            slot = self._slot.pop(fid)
+            self._removals.append(slot)
+            self._slot_keys.pop(slot, None)
+
+    def _replace(self, old: int, new: int | None) -> None:
+        live = old in self._pending_at or old in self._slot
+        self._remove(old)
+        if new is not None and live:
+            self._add(new)
+
+    def _forget(self, key: int, into: int | None) -> None:
+        """Drop a node; merged into `into`, its anchors (or retired position) go along."""
+        anchors = [a for _, a in self._anchor_slot.pop(key, [])]
+        for slot in [s for s, keys in self._slot_keys.items() if key in keys]:
+            self._removals.append(slot)
+            del self._slot_keys[slot]
+        for n, pending in enumerate(self._pending):
+            if pending is not None and pending.anchor_of == key:
+                self._pending[n] = None
+                anchors.append(pending.anchor)
+        if key in self._anchored:
+            anchors.append(self._anchored[key])
+        if into is not None:
+            self._enter(into)
+            for anchor in anchors:
+                self._push_anchor(into, anchor)
+        if self._pending_values.exists(key):
+            self._pending_values.erase(key)
+        for table in (
+            self._guess,
+            self._anchored,
+            self._pending_guess,
+            self._last_seen,
+            self._cov_cache,
+        ):
+            table.pop(key, None)
+        self._live.discard(key)
+        self._permanent.discard(key)
+
+    def _estimate(self, key: int) -> np.ndarray:
+        if key in self._pending_guess:
+            return self._pending_guess[key]
+        if key in self._live:
+            if key_kind(key) == POSE:
+                return pose_array(self._isam.calculateEstimatePose2(key))
+            return np.asarray(self._isam.calculateEstimatePoint2(key), dtype=float).ravel()
+        if key in self._anchored:
+            anchor = self._anchored[key]
+            return compose(self._estimate(anchor.keyframe), np.r_[anchor.z, 0.0])[:2]
+        if key in self._retired_pose:
+            keyframe, rel = self._retired_pose[key]
+            return compose(self._estimate(keyframe), rel)
+        if key in self._guess:
+            return self._guess[key]
+        raise KeyError(f"node {gtsam.DefaultKeyFormatter(key)} is not in the graph")
+
+    # ------------------------------------------------------------------ solving
+    def update(self) -> None:
+        """One iSAM2 step with this step's factors; every `window` steps, a keyframe."""
+        self._solve_pending()
+        self._step += 1
+        if self.window and self._step - self._window_start >= self.window:
+            self._fold()
+
+    def _solve_pending(self, extra: gtsam.NonlinearFactorGraph | None = None) -> None:
+        new = gtsam.NonlinearFactorGraph()
+        pending = [p for p in self._pending if p is not None]
+        for p in pending:
+            new.push_back(p.factor)
+        if extra is not None:
+            new.push_back(extra)
+        if new.size() == 0 and not self._removals:
+            return
+        result = self._isam.update(new, self._pending_values, self._removals)
+        slots = list(result.getNewFactorsIndices())
+        for p, slot in zip(pending, slots, strict=False):
+            self._slot_keys[slot] = p.keys
+            if p.fid is not None:
+                self._slot[p.fid] = slot
+            else:
+                self._anchor_slot.setdefault(p.anchor_of, []).append((slot, p.anchor))
+        if extra is not None:
+            for slot, n in zip(slots[len(pending) :], range(extra.size()), strict=True):
+                self._slot_keys[slot] = tuple(extra.at(n).keys())
+        self._pending, self._pending_at, self._removals = [], {}, []
+        self._pending_values = gtsam.Values()
+        self._pending_guess.clear()
+        self._cov_cache.clear()
+
+    def _fold(self) -> None:
+        """Keyframe each robot's latest pose; marginalise the rest of the window out."""
+        for robot, chain in self.graph.robots.items():
+            latest = chain.keys[-1]
+            if latest not in self._permanent:
+                self._permanent.add(latest)
+                self._keyframes[robot].append(latest)
+        window = self._live - self._permanent
+        if window:
+            slots = [s for s, keys in self._slot_keys.items() if not window.isdisjoint(keys)]
+            factors = self._isam.getFactorsUnsafe()
+            graph, point = gtsam.NonlinearFactorGraph(), gtsam.Values()
+            for slot in slots:
+                graph.push_back(factors.at(slot))
+                for key in self._slot_keys[slot]:
+                    if not point.exists(key):
+                        insert_value(point, key, self._estimate(key))
+            self._retire(window, graph, point)
+            marginal = self._marginal(graph, point, window)
+            for slot in slots:
+                del self._slot_keys[slot]
+            self._removals.extend(slots)
+            self._slot = {f: s for f, s in self._slot.items() if s in self._slot_keys}
+            self._anchor_slot.clear()
+            self._live -= window
+            self._solve_pending(marginal)
+        self._window_start = self._step
+        self.rolls += 1
+
+    def _retire(
+        self, window: set[int], graph: gtsam.NonlinearFactorGraph, point: gtsam.Values
+    ) -> None:
+        """Every window node keeps its place relative to a keyframe of its robot: poses
+        their relative pose, objects their relative position and its covariance given the
+        keyframe (from the window's factors alone; other keyframes and rows left free)."""
+        half = (self._window_start + self._step) / 2
+        anchored: dict[int, list[int]] = {}
+        for key in window:
+            if key_kind(key) == POSE:
+                keyframe = self._keyframes[self._robot_of(key)][-1]
+                rel = between(value_array(point, keyframe), value_array(point, key))
+                self._retired_pose[key] = (keyframe, rel)
+                continue
+            robot, step = self._last_seen.get(key, (next(iter(self._keyframes)), self._step))
+            frames = self._keyframes[robot]
+            keyframe = frames[-2] if step < half and len(frames) > 1 else frames[-1]
+            if not point.exists(keyframe):
+                keyframe = frames[-1]
+            anchored.setdefault(keyframe, []).append(key)
+        blanket = [k for k in point.keys() if k not in window]  # noqa: SIM118
+        for keyframe, keys in anchored.items():
+            marginals = gtsam.Marginals(conditioned(graph, point, keyframe, blanket), point)
+            kf_pose = value_array(point, keyframe)
+            rot = rotation(kf_pose[2])
+            for key in keys:
+                z = point_in_frame(kf_pose, value_array(point, key))
+                cov = rot.T @ marginals.marginalCovariance(key) @ rot
+                self._anchored[key] = Anchored(keyframe, z, cov)
+
+    def _marginal(
+        self, graph: gtsam.NonlinearFactorGraph, point: gtsam.Values, window: set[int]
+    ) -> gtsam.NonlinearFactorGraph:
+        """The window's factors with the window's nodes eliminated: dense factors on the
+        keyframes and rows they touched, linearised at the current estimate."""
+        kept = gtsam.Values()
+        for key in point.keys():  # noqa: SIM118
+            if key not in window:
+                insert_value(kept, key, value_array(point, key))
+        _, remaining = graph.linearize(point).eliminatePartialMultifrontal(sorted(window))
+        return gtsam.LinearContainerFactor.ConvertLinearGraph(remaining, kept)
+
+    def refine(self) -> None:
+        """Solve the whole recorded graph (batch, warm-started from the current estimates)
+        and carry on from that solution: with keyframes, the whole history is folded onto
+        them again, exactly at the solution."""
+        self._solve_pending()
+        if self.window:
+            self._fold()  # the current window retires too: only keyframes and rows live
+        graph, initial = gtsam.NonlinearFactorGraph(), gtsam.Values()
+        for factor in self.graph.factors.values():
+            graph.push_back(make_factor(factor, self.slam))
+            for key in factor.keys:
+                if not initial.exists(key):
+                    insert_value(initial, key, self._estimate(key))
+        solution = solve(graph, initial, self.slam)
+        self._isam = isam2(self.slam)
+        self._cov_cache.clear()
+        if not self.window:
+            self._isam.update(graph, solution)
+            self._slot = {fid: n for n, fid in enumerate(self.graph.factors)}
+            self._slot_keys = {n: f.keys for n, f in enumerate(self.graph.factors.values())}
+            return
+        for key, anchor in self._anchored.items():
+            anchor.z = point_in_frame(
+                value_array(solution, anchor.keyframe), value_array(solution, key)
+            )
+        for key, (keyframe, _) in self._retired_pose.items():
+            rel = between(value_array(solution, keyframe), value_array(solution, key))
+            self._retired_pose[key] = (keyframe, rel)
+        self._refold(solution)
+
+    def _refold(self, solution: gtsam.Values) -> None:
+        """Live graph = keyframes and rows with the whole history marginalised onto them
+        at `solution`, plus the record's factors between them (kept nonlinear)."""
+        history, live = gtsam.NonlinearFactorGraph(), gtsam.NonlinearFactorGraph()
+        fids, gone = [], set()
+        for fid, factor in self.graph.factors.items():
+            if self._permanent.issuperset(factor.keys):
+                fids.append(fid)
+                live.push_back(make_factor(factor, self.slam))
+            else:
+                history.push_back(make_factor(factor, self.slam))
+                gone.update(k for k in factor.keys if k not in self._permanent)
+        kept, values = gtsam.Values(), gtsam.Values()
+        for key in self._live:
+            insert_value(values, key, value_array(solution, key))
+        for key in history.keyVector():
+            if key not in gone:
+                insert_value(kept, key, value_array(solution, key))
+        _, remaining = history.linearize(solution).eliminatePartialMultifrontal(sorted(gone))
+        folded = gtsam.LinearContainerFactor.ConvertLinearGraph(remaining, kept)
+        live.push_back(folded)
+        self._isam.update(live, values)
+        self._slot = {fid: n for n, fid in enumerate(fids)}
+        self._slot_keys = {n: tuple(live.at(n).keys()) for n in range(live.size())}
+        self._anchor_slot.clear()
+
+    # ---------------------------------------------------------------- queries
+    def _marginal_covariance(self, key: int) -> np.ndarray:
+        if key not in self._cov_cache:
+            self._cov_cache[key] = self._isam.marginalCovariance(key)
+        return self._cov_cache[key]
+
+    def object_covariances(self, object_ids: np.ndarray) -> np.ndarray:
+        """(k, 2, 2) marginal covariances of the given objects, cached until the next step;
+        a retired object's combines its keyframe's and its relative position's."""
+        out = np.empty((len(object_ids), 2, 2))
+        for n, object_id in enumerate(object_ids):
+            key = self.graph.require_object(int(object_id))
+            if key in self._pending_guess or key in self._guess:
+                raise ValueError(f"object {object_id} is not solved yet (call update first)")
+            if key in self._live:
+                out[n] = self._marginal_covariance(key)
+                continue
+            anchor = self._anchored[key]
+            kf_pose = self._estimate(anchor.keyframe)
+            rot = rotation(kf_pose[2])
+            z = anchor.z
+            # l = K (+) z: dl/d(dx, dy, dtheta) = R [[1, 0, -z_y], [0, 1, z_x]]; dl/dz = R
+            jac = rot @ np.array([[1.0, 0.0, -z[1]], [0.0, 1.0, z[0]]])
+            cov_k = self._marginal_covariance(anchor.keyframe)
+            out[n] = jac @ cov_k @ jac.T + rot @ anchor.cov @ rot.T
+        return out
+
+    def live_size(self) -> int:
+        return len(self._live)

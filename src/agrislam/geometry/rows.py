@@ -1,0 +1,273 @@
+"""Row prior knowledge (sec. 2.6.2): fit parallel rows a known distance apart to the mapped
+plants, give each row a node in the graph, tie plants near a row to it across the row
+only, and neighbouring row nodes to each other.
+
+Rows are the lines {p : n . p = offset + m * row_spacing}, n = (-sin a, cos a), for
+integer m (the lattice index); the world calls `RowTracker.after_step` once per step,
+after the back end's update."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from agrislam.config import RowsConfig
+from agrislam.geometry.backend import GraphBackend
+from agrislam.geometry.noise import row_normal
+from agrislam.records import FieldPrior
+from agrislam.snapshot import RowLines
+
+# coarse-to-fine search for the row angle when none is known: 1 deg, then 0.05 deg steps
+COARSE_STEP = math.radians(1.0)
+FINE_STEP = math.radians(0.05)
+GAUSS_NEWTON_ITERATIONS = 5
+# a refit that turns the rows by more than this rebuilds the row constraints
+REBUILD_ANGLE = math.radians(0.2)
+
+
+def wrap_row_angle(angle: float) -> float:
+    """Rows at a and a + pi are the same lines: angle into [-pi/2, pi/2)."""
+    return (angle + math.pi / 2) % math.pi - math.pi / 2
+
+
+def periodicity(points: np.ndarray, angles: np.ndarray, spacing: float) -> np.ndarray:
+    """|mean of exp(2 pi i n(a) . p / spacing)| per angle: 1 when every point sits on a row
+    of the lattice at angle a, near 0 for points spread evenly across the rows."""
+    normals = np.stack([-np.sin(angles), np.cos(angles)], axis=1)  # (k, 2)
+    phase = 2 * np.pi * (points @ normals.T) / spacing  # (n, k)
+    return np.abs(np.exp(1j * phase).mean(axis=0))
+
+
+def lattice_offset(d: np.ndarray, spacing: float) -> float:
+    """Offset o in [0, spacing) that best explains projections d as o + m * spacing."""
+    return spacing * (np.angle(np.exp(2j * np.pi * d / spacing).mean()) / (2 * np.pi)) % spacing
+
+
+def search_angle(points: np.ndarray, spacing: float) -> float:
+    """Row angle maximising the periodicity of the projections (coarse, then fine)."""
+    coarse = np.arange(-math.pi / 2, math.pi / 2, COARSE_STEP)
+    best = coarse[np.argmax(periodicity(points, coarse, spacing))]
+    fine = best + np.arange(-COARSE_STEP, COARSE_STEP + FINE_STEP, FINE_STEP)
+    return float(fine[np.argmax(periodicity(points, fine, spacing))])
+
+
+def fit_rows(
+    points: np.ndarray,
+    spacing: float,
+    angle0: float | None,
+    offset0: float | None = None,
+    angle_prior: float | None = None,
+    angle_sigma: float = 0.0,
+    inlier: float = 0.25,
+) -> tuple[float, float]:
+    """Least-squares row angle and offset (sec. 2.6.2) for points (n, 2), spacing known.
+
+    Starts from `angle0` (searched when None); residuals r_i = n(a) . p_i - o - m_i s with
+    m_i the nearest row, points farther than `inlier` * spacing from it left out. A known
+    `angle_prior` with `angle_sigma` > 0 is a prior on a (in units of the row spacing's
+    residuals: sigma_a weighs against one point at `inlier` spacing); sigma 0 fixes it."""
+    if angle_prior is not None and angle_sigma == 0.0:
+        angle0 = angle_prior
+    angle = search_angle(points, spacing) if angle0 is None else float(angle0)
+    d = points @ row_normal(angle)
+    offset = lattice_offset(d, spacing) if offset0 is None else float(offset0)
+    fixed = angle_prior is not None and angle_sigma == 0.0
+    for _ in range(GAUSS_NEWTON_ITERATIONS):
+        normal = row_normal(angle)
+        d = points @ normal
+        m = np.round((d - offset) / spacing)
+        r = d - offset - m * spacing
+        use = np.abs(r) < inlier * spacing
+        if use.sum() < 2:
+            break
+        # d r / d a = p . dn/da = -p . (cos a, sin a); d r / d o = -1
+        da = -(points[use] @ np.array([math.cos(angle), math.sin(angle)]))
+        if fixed:
+            offset += r[use].mean()
+            continue
+        jac = np.column_stack([da, -np.ones(use.sum())])
+        lhs, rhs = jac.T @ jac, -jac.T @ r[use]
+        if angle_prior is not None:
+            weight = (inlier * spacing / angle_sigma) ** 2
+            lhs[0, 0] += weight
+            rhs[0] -= weight * (angle - angle_prior)
+        step = np.linalg.lstsq(lhs, rhs, rcond=None)[0]
+        angle, offset = angle + step[0], offset + step[1]
+    return wrap_row_angle(angle), float(offset)
+
+
+class RowTracker:
+    """Decides when to fit rows, which plants belong to which row, and adds the row nodes
+    and constraints to the back end (sec. 2.6.2)."""
+
+    def __init__(self, config: RowsConfig) -> None:
+        self.config = config
+        self.spacing = config.row_spacing
+        self.angle_prior = (
+            None if config.row_angle_deg is None else math.radians(config.row_angle_deg)
+        )
+        self.angle: float | None = None
+        self.offset = 0.0
+        self.n_detections = 0
+        self.next_fit = config.n_det_est
+        self.fits = 0
+        self._row_of_index: dict[int, int] = {}  # lattice index m -> back-end row id
+        self._next_row = 0
+        self._seen: dict[int, int] = {}  # object id -> detections counted
+        self._backend: GraphBackend | None = None
+
+    def use_prior(self, field: FieldPrior) -> None:
+        """Field knowledge from a log's meta: row spacing, and a row angle unless configured."""
+        if field.row_spacing is not None and self.angle is None:
+            self.spacing = float(field.row_spacing)
+        if field.row_angle_deg is not None and self.angle_prior is None:
+            self.angle_prior = math.radians(field.row_angle_deg)
+
+    # ------------------------------------------------------------------ per step
+    def after_step(
+        self, backend: GraphBackend, touched_object_ids: np.ndarray, n_new_detections: int
+    ) -> None:
+        """Count the step's detections; fit (or refit) rows when due; give touched plants
+        near a row their row constraint."""
+        self._backend = backend
+        self.n_detections += int(n_new_detections)
+        for object_id in np.asarray(touched_object_ids, dtype=np.int64).tolist():
+            self._seen[object_id] = self._seen.get(object_id, 0) + 1
+        if self.n_detections >= self.next_fit:
+            self._fit(backend)
+            self.next_fit = 2 * self.n_detections  # refit as the evidence doubles
+        if self.angle is not None:
+            self._assign(backend, np.asarray(touched_object_ids, dtype=np.int64))
+
+    def _fit_points(self, backend: GraphBackend) -> tuple[np.ndarray, np.ndarray]:
+        ids = backend.object_ids()
+        seen = np.array([self._seen.get(int(i), 0) for i in ids], dtype=np.int64)
+        ids = ids[seen >= self.config.min_detections]
+        return ids, backend.object_positions(ids)
+
+    def _fit(self, backend: GraphBackend) -> None:
+        ids, points = self._fit_points(backend)
+        if len(ids) < 2:
+            return
+        sigma = math.radians(self.config.angle_prior_sigma_deg)
+        previous = self.angle
+        angle, offset = fit_rows(
+            points,
+            self.spacing,
+            angle0=self.angle if self.angle is not None else self.angle_prior,
+            offset0=None if self.angle is None else self.offset,
+            angle_prior=self.angle_prior,
+            angle_sigma=sigma,
+            inlier=0.25,
+        )
+        if previous is not None:
+            # keep the lattice numbering: the new offset nearest the old one
+            offset = self.offset + math.remainder(offset - self.offset, self.spacing)
+        self.angle, self.offset = angle, offset
+        self.fits += 1
+        if previous is not None and abs(math.remainder(angle - previous, math.pi)) > REBUILD_ANGLE:
+            self._rebuild(backend)
+
+    def _rebuild(self, backend: GraphBackend) -> None:
+        """The rows turned: new row nodes and constraints at the new angle."""
+        members = backend.object_ids()
+        members = members[backend.rows_of(members) >= 0]
+        for row in self._row_of_index.values():
+            backend.remove_row(row)
+        self._row_of_index.clear()
+        self._assign(backend, members)
+
+    def _assign(self, backend: GraphBackend, object_ids: np.ndarray) -> None:
+        """Plants within max_offset of a row get a constraint to it (none along it)."""
+        if len(object_ids) == 0:
+            return
+        ready = np.array(
+            [self._seen.get(int(i), 0) >= self.config.min_detections for i in object_ids]
+        )
+        candidates = object_ids[ready]
+        candidates = candidates[backend.rows_of(candidates) < 0]
+        if len(candidates) == 0:
+            return
+        normal = row_normal(self.angle)
+        lines = _Lines(self, backend, normal)
+        positions = backend.object_positions(candidates)
+        for object_id, point in zip(candidates.tolist(), positions, strict=True):
+            row = lines.row_for(point)
+            if row is not None:
+                backend.add_row_constraint(object_id, row)
+
+    def _new_row(self, backend: GraphBackend, index: int, point: np.ndarray) -> int:
+        """A row node for lattice row `index` at `point` on its line, with spacing
+        constraints to its existing neighbours."""
+        row = self._next_row
+        self._next_row += 1
+        backend.add_row(row, point, self.angle)
+        self._row_of_index[index] = row
+        for neighbour in (index - 1, index + 1):
+            if neighbour in self._row_of_index:
+                lower, upper = sorted((index, neighbour))
+                backend.add_row_spacing(
+                    self._row_of_index[lower], self._row_of_index[upper], self.spacing
+                )
+        return row
+
+    # ------------------------------------------------------------------ map out
+    def _rows_in_order(self) -> np.ndarray:
+        """Back-end row ids sorted across the field (by lattice index)."""
+        return np.array([self._row_of_index[m] for m in sorted(self._row_of_index)], np.int64)
+
+    def row_of(self, object_ids: np.ndarray) -> np.ndarray:
+        """Index of each object's row in `lines().offsets`, -1 for none."""
+        ids = np.asarray(object_ids, dtype=np.int64)
+        if self._backend is None or not self._row_of_index:
+            return np.full(len(ids), -1, dtype=np.int64)
+        rows = self._backend.rows_of(ids)
+        order = self._rows_in_order()
+        rank = np.full(self._next_row, -1, dtype=np.int64)
+        rank[order] = np.arange(len(order))
+        return np.where(rows >= 0, rank[np.maximum(rows, 0)], -1)
+
+    def lines(self) -> RowLines | None:
+        """The rows across the field as lines n . p = offsets[k], from the optimised row
+        nodes; `row_of` indexes them."""
+        if self.angle is None or self._backend is None:
+            return None
+        points = self._backend.row_points(self._rows_in_order())
+        return RowLines(self.angle, points @ row_normal(self.angle))
+
+
+class _Lines:
+    """The current row lines during one assignment pass: existing rows as optimised (their
+    nodes move with the map, so a drifting map still finds its rows), new rows one row
+    spacing from the nearest existing one, or on the fitted lattice while there is none."""
+
+    def __init__(self, tracker: RowTracker, backend: GraphBackend, normal: np.ndarray) -> None:
+        self.tracker, self.backend, self.normal = tracker, backend, normal
+        self.indices = sorted(tracker._row_of_index)
+        rows = np.array([tracker._row_of_index[m] for m in self.indices], dtype=np.int64)
+        self.rows = rows.tolist()
+        self.offsets = (backend.row_points(rows) @ normal).tolist() if len(rows) else []
+
+    def row_for(self, point: np.ndarray) -> int | None:
+        tracker, spacing = self.tracker, self.tracker.spacing
+        max_offset = tracker.config.max_offset
+        d = float(point @ self.normal)
+        if self.offsets:
+            k = int(np.argmin(np.abs(np.asarray(self.offsets) - d)))
+            if abs(d - self.offsets[k]) < max_offset:
+                return self.rows[k]
+            steps = round((d - self.offsets[k]) / spacing)
+            index, base = self.indices[k] + steps, self.offsets[k] + steps * spacing
+            if index in tracker._row_of_index:
+                return None  # that row exists, and the plant is not on it
+        else:
+            index = round((d - tracker.offset) / spacing)
+            base = tracker.offset + index * spacing
+        if abs(d - base) >= max_offset:
+            return None
+        row = tracker._new_row(self.backend, index, point - (d - base) * self.normal)
+        self.indices.append(index)
+        self.rows.append(row)
+        self.offsets.append(base)
+        return row
