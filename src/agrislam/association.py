@@ -33,6 +33,8 @@ class PlacedDetections:
     xy: np.ndarray  # (m, 2)
     cov: np.ndarray  # (m, 2, 2)
     measurements: Sequence[Mapping[str, Measurement]]
+    robot_xy: np.ndarray | None = None  # (m, 2) the same detections in the robot frame
+    robot_cov: np.ndarray | None = None  # (m, 2, 2)
 
     def __len__(self) -> int:
         return len(self.xy)
@@ -116,6 +118,14 @@ def association_matrix(
 ) -> np.ndarray:
     """The matrix A of sec. 2.4 over the frame's detections x candidate objects."""
     distance = distance_term(detections.xy, object_xy, object_cov, config.d_inter)
+    if config.detection_covariance:
+        # innovation covariance K_n + R_m per pair (a deviation from sec. 2.4, see config)
+        s = object_cov[None, :, :, :] + detections.cov[:, None, :, :]
+        e = object_xy[None, :, :] - detections.xy[:, None, :]
+        a, b, c = s[..., 0, 0], s[..., 0, 1], s[..., 1, 1]
+        ex, ey = e[..., 0], e[..., 1]
+        mahalanobis = (c * ex * ex - 2 * b * ex * ey + a * ey * ey) / (a * c - b * b)
+        distance = np.minimum(np.einsum("mki,mki->mk", e, e) / config.d_inter**2, mahalanobis)
     if not config.use_semantics:
         return distance
     semantic = semantic_term(beliefs, object_ids, detections.measurements, config.w_sem, t)

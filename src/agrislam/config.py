@@ -224,6 +224,15 @@ class SensorDefaults(_Strict):
     odom_cov_diag: tuple[float, float, float] = (1e-4, 1e-4, 4e-6)
     detection_sigma_depth: float = Field(0.10, gt=0.0, description="m, along the viewing ray")
     detection_sigma_lateral: float = Field(0.03, gt=0.0, description="m, across the ray")
+    depth_bias: float = Field(
+        0.0, description="m a detection lies nearer than the plant's centre (initial value)"
+    )
+    estimate_depth_bias: bool = Field(
+        True, description="learn the depth bias from multi-view residuals (sec. 2.3)"
+    )
+    depth_bias_min_views: int = Field(
+        4, ge=1, description="detections of an object before its residuals count"
+    )
     max_range: float = Field(
         2.5, gt=0.0, description="detections farther away are dropped (App. A)"
     )

@@ -32,12 +32,14 @@ from agrislam.geometry.backend import (
     detection_covariance,
     make_backend,
 )
+from agrislam.geometry.depth_bias import DepthBiasEstimator
 from agrislam.geometry.rows import RowTracker
 from agrislam.maintenance import MaintenanceResult, Pruner, merge_pairs
 from agrislam.records import (
     Detection,
     Detections,
     DiscreteMeasurement,
+    FieldPrior,
     Measurement,
     Meta,
     Odometry,
@@ -84,12 +86,14 @@ class StepReport:
 class _Robot:
     """One robot's chain: its odometry since the last frame, and its dead reckoning."""
 
+    start_pose: np.ndarray | None = None  # map-frame prior from the survey's meta
+    start_sigma: np.ndarray | None = None
+    started: bool = False  # added to the back end
     pending: tuple[np.ndarray, np.ndarray] | None = None  # composed delta, cov
     odom_pose: np.ndarray | None = None  # last absolute odometry-frame pose, if given
     dead_reckoning: np.ndarray = field(default_factory=lambda: np.zeros(3))
     dr_t: list[float] = field(default_factory=list)
     dr_poses: list[np.ndarray] = field(default_factory=list)
-    frame_t: list[float] = field(default_factory=list)
 
 
 class _Timer:
@@ -122,6 +126,7 @@ class WorldModel:
         self.index = SpatialIndex(self.config.association.index_margin)
         self._steps_since_rebuild = 0
         self.pruner = Pruner(self.config.maintenance)
+        self.depth_bias = DepthBiasEstimator(self.config.sensor.depth_bias)
         self.anchor = None
         self.issues: dict[str, int] = defaultdict(int)
         self._robots: dict[str, _Robot] = {}
@@ -148,18 +153,26 @@ class WorldModel:
             self.schema = meta.schema
             self.beliefs = BeliefTable(self.schema, self.config.semantics)
         self.anchor = meta.anchor or self.anchor
-        association = self.config.association
-        if meta.field is not None and meta.field.min_plant_distance:
-            if "d_inter" not in association.model_fields_set:  # the survey knows its field
-                association.d_inter = meta.field.min_plant_distance
-        if meta.field is not None and self.rows is not None:
-            self.rows.use_prior(meta.field)
+        if meta.field is not None:
+            self._use_field_prior(meta.field)
         for name, start in meta.robots.items():
-            self._add_robot(name, start.pose, start.sigma)
+            robot = self._robots.setdefault(name, _Robot())
+            if not robot.started:
+                robot.start_pose = np.asarray(start.pose, dtype=float)
+                robot.start_sigma = np.asarray(start.sigma, dtype=float)
+
+    def _use_field_prior(self, prior: FieldPrior) -> None:
+        """What the survey knows of its field, unless the run's config says otherwise."""
+        association = self.config.association
+        if prior.min_plant_distance and "d_inter" not in association.model_fields_set:
+            # a detection nearer than half the plant spacing is this plant, not its neighbour
+            association.d_inter = 0.5 * prior.min_plant_distance
+        if self.rows is not None:
+            self.rows.use_prior(prior)
 
     def add_odometry(self, odom: Odometry) -> None:
         """Compose the motion into the robot's pending increment (DESIGN step 2)."""
-        robot = self._robot(odom.robot)
+        robot = self._robot(odom.robot, odom.t)
         delta = self._increment(robot, odom)
         if delta is None:
             return
@@ -193,10 +206,12 @@ class WorldModel:
         with timer("beliefs"):
             self.beliefs.update(object_ids, [d.attributes for d in detections], t)
         with timer("geometry"):
-            for det, obj in zip(detections, object_ids.tolist(), strict=True):
-                self.backend.add_observation(frame.robot, obj, self._measurement(det))
+            for i, (det, obj) in enumerate(zip(detections, object_ids.tolist(), strict=True)):
+                measurement = self._measurement(det, placed.robot_xy[i], placed.robot_cov[i])
+                self.backend.add_observation(frame.robot, obj, measurement)
             self.backend.update()
             self._refresh_index(np.unique(object_ids))
+            self._calibrate_depth(frame.robot, placed, object_ids)
         with timer("rows"):
             if self.rows is not None:
                 self.rows.after_step(self.backend, np.unique(object_ids), len(detections))
@@ -217,22 +232,22 @@ class WorldModel:
         return [self._checked(det) for det in frame.objects]
 
     def _add_pose(self, robot_name: str, t: float) -> None:
-        robot = self._robot(robot_name)
+        robot = self._robot(robot_name, t)
         if robot.pending is not None:
             delta, cov = robot.pending
             self.backend.add_odometry(robot_name, t, delta, cov)
             robot.pending = None
-            robot.frame_t.append(t)
 
     def _place(self, robot: str, detections: list[Detection]) -> PlacedDetections:
-        """Detections into the map frame with their covariances (DESIGN step 3)."""
+        """Detections into the map frame with their covariances (DESIGN step 3), after
+        the depth-bias correction."""
         if not detections:
             return PlacedDetections(np.empty((0, 2)), np.empty((0, 2, 2)), [])
-        xy = np.stack([d.position() for d in detections])
+        xy = self.depth_bias.correct(np.stack([d.position() for d in detections]))
         cov = np.stack([self._robot_frame_cov(d) for d in detections])
         map_xy, map_cov = se2.to_map_frame(self.backend.current_pose(robot), xy, cov)
         measurements = [informative_measurements(self.schema, d.attributes) for d in detections]
-        return PlacedDetections(map_xy, map_cov, measurements)
+        return PlacedDetections(map_xy, map_cov, measurements, xy, cov)
 
     def _associate(self, placed: PlacedDetections, t: float) -> np.ndarray:
         """GNN over the association matrix of gated candidates (sec. 2.4); -1 = new."""
@@ -281,7 +296,7 @@ class WorldModel:
                 self.index,
                 self.backend.object_positions,
                 self.beliefs.n_meas,
-                cfg.merge_fraction * self.config.association.d_inter,
+                self.config.association.d_inter,
             )
             for keep, drop in pairs:
                 self.beliefs.fuse(keep, drop)
@@ -350,23 +365,23 @@ class WorldModel:
 
     # ----------------------------------------------------------------- helpers
 
-    def _robot(self, name: str) -> _Robot:
-        if name not in self._robots:
-            self._add_robot(name, None, None)
-        return self._robots[name]
-
-    def _add_robot(self, name: str, pose: np.ndarray | None, sigma: np.ndarray | None) -> None:
-        if name in self._robots:
-            return
-        first = not self._robots
-        if pose is None and not first:
-            # spec: a later robot without a start pose must be placed from shared landmarks;
-            # a weak prior at the origin lets the graph do so once it sees mapped plants
-            self.issues[f"robot {name!r} has no start pose: weak prior at the origin"] += 1
-            sigma = np.array([10.0, 10.0, np.pi])
-        start = np.zeros(3) if pose is None else np.asarray(pose, dtype=float)
-        self.backend.add_robot(name, start, sigma)
-        self._robots[name] = _Robot(dead_reckoning=start.copy())
+    def _robot(self, name: str, t: float) -> _Robot:
+        """The robot's chain, started in the back end at its first record's time."""
+        robot = self._robots.get(name)
+        if robot is None:
+            robot = self._robots[name] = _Robot()
+        if not robot.started:
+            if robot.start_pose is None and any(r.started for r in self._robots.values()):
+                # spec: a later robot without a start pose must be placed from shared
+                # landmarks; a weak prior at the origin lets the graph do so
+                self.issues[f"robot {name!r} has no start pose: weak prior at the origin"] += 1
+                robot.start_sigma = np.array([10.0, 10.0, np.pi])
+            start = np.zeros(3) if robot.start_pose is None else robot.start_pose
+            self.backend.add_robot(name, start, robot.start_sigma, t)
+            robot.dead_reckoning, robot.started = start.copy(), True
+            robot.dr_t.append(t)
+            robot.dr_poses.append(robot.dead_reckoning)
+        return robot
 
     @staticmethod
     def _increment(robot: _Robot, odom: Odometry) -> np.ndarray | None:
@@ -389,16 +404,19 @@ class WorldModel:
             det.position(), sensor.detection_sigma_depth, sensor.detection_sigma_lateral
         )
 
-    def _measurement(self, det: Detection) -> RelativePosition | RangeBearing:
+    def _measurement(
+        self, det: Detection, xy: np.ndarray, cov: np.ndarray
+    ) -> RelativePosition | RangeBearing:
+        """The factor's measurement in the form the detection came in (xy: corrected)."""
         if det.range is not None and det.xy is None:
             sensor = self.config.sensor
             return RangeBearing(
-                det.range,
+                float(np.hypot(*xy)),
                 det.bearing,
                 det.sigma_range or sensor.detection_sigma_depth,
                 det.sigma_bearing or sensor.detection_sigma_lateral / max(det.range, 1e-6),
             )
-        return RelativePosition(det.position(), self._robot_frame_cov(det))
+        return RelativePosition(xy, cov)
 
     def _checked(self, det: Detection) -> Detection:
         bad = [n for n, m in det.attributes.items() if not self._fits_schema(n, m)]
@@ -437,6 +455,20 @@ class WorldModel:
             ids = self.active_ids()
             self.index.rebuild(ids, self.backend.object_positions(ids))
             self._steps_since_rebuild = 0
+
+    def _calibrate_depth(
+        self, robot: str, placed: PlacedDetections, object_ids: np.ndarray
+    ) -> None:
+        """Along-ray residuals of detections of well-triangulated objects refine the
+        depth bias (geometry/depth_bias.py)."""
+        if not self.config.sensor.estimate_depth_bias or len(object_ids) == 0:
+            return
+        known = self.beliefs.n_meas[object_ids] > self.config.sensor.depth_bias_min_views
+        if not known.any():
+            return
+        pose = self.backend.current_pose(robot)
+        predicted = se2.to_robot_frame(pose, self.backend.object_positions(object_ids[known]))
+        self.depth_bias.observe(placed.robot_xy[known], predicted)
 
     def _retire(self, obj: int, status: int, into: int = -1) -> None:
         self._status[obj] = status

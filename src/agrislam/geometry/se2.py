@@ -50,3 +50,8 @@ def to_map_frame(
     """Robot-frame points (m, 2) with covariances (m, 2, 2) into the map frame."""
     r = rotation(pose[2])
     return xy @ r.T + pose[:2], r @ cov @ r.T
+
+
+def to_robot_frame(pose: np.ndarray, xy: np.ndarray) -> np.ndarray:
+    """Map-frame points (m, 2) into the frame of the robot at `pose`."""
+    return (xy - pose[:2]) @ rotation(pose[2])
