@@ -52,13 +52,21 @@ class Survey:
     starts: dict[str, tuple[np.ndarray, np.ndarray]]
     steps: list[Step]
     truth: dict[str, np.ndarray]
+    weeds: set[str]  # ids of the plants off the rows
+    row_normal: np.ndarray  # n of the true rows: row k is n . p = n . origin + k spacing
+    row_origin: np.ndarray
 
 
-def make_survey(n_plants: int, seed: int = 1) -> Survey:
+def make_survey(
+    n_plants: int, seed: int = 1, n_rows: int | None = None, weed_fraction: float = 0.0
+) -> Survey:
     """A simulated survey of the field with `n_plants` plants, records flattened to steps."""
+    layout = FieldLayout(
+        n_plants=n_plants, n_rows=n_rows or ROWS.get(n_plants, 10), weed_fraction=weed_fraction
+    )
     cfg = SimConfig(
         seed=seed,
-        field=FieldLayout(n_plants=n_plants, n_rows=ROWS.get(n_plants, 10)),
+        field=layout,
         detector=DetectorConfig(clutter_rate=0.0, double_detection_p=0.0),
     )
     sim = Simulator(cfg)
@@ -72,8 +80,10 @@ def make_survey(n_plants: int, seed: int = 1) -> Survey:
             dets = [(d.truth_id, np.asarray(d.xy), np.asarray(d.cov)) for d in record.objects]
             steps.append(Step(record.t, record.robot, pending, dets))
             pending = None
-    truth = {str(i): xy for i, xy in zip(sim.field.ids, sim.field.xy, strict=True)}
-    return Survey(n_plants, starts, steps, truth)
+    field = sim.field
+    truth = {str(i): xy for i, xy in zip(field.ids, field.xy, strict=True)}
+    weeds = {str(i) for i in field.ids[field.is_weed]}
+    return Survey(n_plants, starts, steps, truth, weeds, field.row_normal, field.origin)
 
 
 @dataclass

@@ -14,10 +14,14 @@ Written (one line each, information matrices as their upper triangle, row by row
     FIX id                             a fixed vertex (read as a very tight prior)
 
 EDGE_POINTXY, EDGE_PRIOR_XY and EDGE_PRIOR_SE2 are g2o's own slam2d types. What g2o has
-no type for is in comment lines g2o skips: `# agrislam robot NAME FIRST COUNT`,
-`# agrislam times NAME t0 t1 ...`, `# agrislam object VERTEX ID`, `# agrislam row VERTEX
-ID ANGLE`. A detection is solved as bearing and range (its 2x2 covariance carried over
-to first order); its robust kernel is solver configuration, not part of the file.
+no type for is in comment lines at the end of the file, which g2o skips:
+`# agrislam robot NAME FIRST COUNT`, `# agrislam times NAME t0 t1 ...`,
+`# agrislam object VERTEX ID`, `# agrislam row VERTEX ID ANGLE`. GTSAM's readG2o reads
+the poses, objects and odometry of such a file (it skips the edge types it has no
+parser for). A detection is solved as bearing and range (its 2x2 covariance carried
+over to first order); its robust kernel is solver configuration, not part of the file.
+g2o's EDGE_SE2 error is (z^-1 a^-1 b) as (x, y, theta), GTSAM's the SE(2) logarithm of
+it: the same to first order, so a solved graph stays solved.
 """
 
 from __future__ import annotations
@@ -83,15 +87,15 @@ def _rank_one(direction: np.ndarray, sigma: float) -> np.ndarray:
 # ----------------------------------------------------------------------------- write
 def write_g2o(backend: BackendBase, path: str | Path, fix_first: bool = False) -> None:
     """The back end's graph at its current estimate as a g2o file; `fix_first` also writes
-    `FIX` for the first pose (for tools that read no priors)."""
+    `FIX` for the first pose (for tools that read no priors). The agrislam comments come
+    last: GTSAM's readG2o stops at the first comment line."""
     graph = backend.graph
     vertex: dict[int, int] = {}
-    lines = [
-        "# agrislam graph (sec. 2.6): robot poses, objects, rows; see agrislam.geometry.g2o",
-    ]
+    lines: list[str] = []
+    notes = ["# agrislam graph (sec. 2.6): robot poses, objects, rows; agrislam.geometry.g2o"]
     for name, chain in graph.robots.items():
-        lines.append(f"# agrislam robot {name} {len(vertex)} {len(chain.keys)}")
-        lines.append(f"# agrislam times {name} " + " ".join(_num(t) for t in chain.times))
+        notes.append(f"# agrislam robot {name} {len(vertex)} {len(chain.keys)}")
+        notes.append(f"# agrislam times {name} " + " ".join(_num(t) for t in chain.times))
         for key in chain.keys:
             vertex[key] = len(vertex)
             x, y, theta = backend._estimate(key)
@@ -100,19 +104,18 @@ def write_g2o(backend: BackendBase, path: str | Path, fix_first: bool = False) -
         key = object_key(object_id)
         vertex[key] = len(vertex)
         x, y = backend._estimate(key)
-        lines.append(f"# agrislam object {vertex[key]} {object_id}")
+        notes.append(f"# agrislam object {vertex[key]} {object_id}")
         lines.append(f"VERTEX_XY {vertex[key]} {_num(x)} {_num(y)}")
     for row, node in graph.rows.items():
         key = row_key(row)
         vertex[key] = len(vertex)
         x, y = backend._estimate(key)
-        lines.append(f"# agrislam row {vertex[key]} {row} {_num(node.angle)}")
+        notes.append(f"# agrislam row {vertex[key]} {row} {_num(node.angle)}")
         lines.append(f"VERTEX_XY {vertex[key]} {_num(x)} {_num(y)}")
-    if fix_first and graph.robots:
+    lines.extend(_edge_line(factor, vertex) for factor in graph.factors.values())
+    if fix_first and graph.robots:  # after the edges: GTSAM's reader stops at FIX too
         lines.append(f"FIX {vertex[next(iter(graph.robots.values())).keys[0]]}")
-    for factor in graph.factors.values():
-        lines.append(_edge_line(factor, vertex))
-    Path(path).write_text("\n".join(lines) + "\n", encoding="utf-8")
+    Path(path).write_text("\n".join(lines + notes) + "\n", encoding="utf-8")
 
 
 def _edge_line(factor: Factor, vertex: dict[int, int]) -> str:

@@ -37,6 +37,8 @@ from agrislam.geometry.se2 import between, compose, rotation
 # conditioning on a keyframe: its prior (m, rad); others only kept from floating away
 FIXED_SIGMA = 1e-4
 FREE_SIGMA = 10.0
+# Gauss-Newton iterations on the window before it is folded away
+FOLD_ITERATIONS = 2
 
 
 def isam2(slam: SlamConfig) -> gtsam.ISAM2:
@@ -278,6 +280,7 @@ class IncrementalBackend(BackendBase):
                 self._keyframes[robot].append(latest)
         window = self._live - self._permanent
         if window:
+            self._converge()
             slots = [s for s, keys in self._slot_keys.items() if not window.isdisjoint(keys)]
             factors = self._isam.getFactorsUnsafe()
             graph, point = gtsam.NonlinearFactorGraph(), gtsam.Values()
@@ -298,12 +301,20 @@ class IncrementalBackend(BackendBase):
         self._window_start = self._step
         self.rolls += 1
 
+    def _converge(self) -> None:
+        """Gauss-Newton iterations relinearising everything that moved more than the
+        threshold: what is folded away keeps the linearisation it has then."""
+        params = gtsam.ISAM2UpdateParams()
+        params.force_relinearize = True
+        for _ in range(FOLD_ITERATIONS):
+            self._isam.update(gtsam.NonlinearFactorGraph(), gtsam.Values(), params)
+
     def _retire(
         self, window: set[int], graph: gtsam.NonlinearFactorGraph, point: gtsam.Values
     ) -> None:
         """Every window node keeps its place relative to a keyframe of its robot: poses
         their relative pose, objects their relative position and its covariance given the
-        keyframe (from the window's factors alone; other keyframes and rows left free)."""
+        keyframe (from the window's factors and those among the nodes they touch)."""
         half = (self._window_start + self._step) / 2
         anchored: dict[int, list[int]] = {}
         for key in window:
@@ -319,8 +330,15 @@ class IncrementalBackend(BackendBase):
                 keyframe = frames[-1]
             anchored.setdefault(keyframe, []).append(key)
         blanket = [k for k in point.keys() if k not in window]  # noqa: SIM118
+        # with the factors already among the blanket's nodes (odometry between keyframes,
+        # row spacing): an object seen from two keyframes is known given either
+        around = graph.clone()
+        factors, inside = self._isam.getFactorsUnsafe(), set(blanket)
+        for slot, keys in self._slot_keys.items():
+            if inside.issuperset(keys):
+                around.push_back(factors.at(slot))
         for keyframe, keys in anchored.items():
-            marginals = gtsam.Marginals(conditioned(graph, point, keyframe, blanket), point)
+            marginals = gtsam.Marginals(conditioned(around, point, keyframe, blanket), point)
             kf_pose = value_array(point, keyframe)
             rot = rotation(kf_pose[2])
             for key in keys:

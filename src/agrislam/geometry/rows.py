@@ -59,39 +59,37 @@ def fit_rows(
     offset0: float | None = None,
     angle_prior: float | None = None,
     angle_sigma: float = 0.0,
-    inlier: float = 0.25,
+    inlier: float = 0.2,
+    point_sigma: float = 0.05,
 ) -> tuple[float, float]:
     """Least-squares row angle and offset (sec. 2.6.2) for points (n, 2), spacing known.
 
     Starts from `angle0` (searched when None); residuals r_i = n(a) . p_i - o - m_i s with
-    m_i the nearest row, points farther than `inlier` * spacing from it left out. A known
-    `angle_prior` with `angle_sigma` > 0 is a prior on a (in units of the row spacing's
-    residuals: sigma_a weighs against one point at `inlier` spacing); sigma 0 fixes it."""
-    if angle_prior is not None and angle_sigma == 0.0:
+    m_i the nearest row, points farther than `inlier` (m) from it left out, each residual
+    with std `point_sigma`. A known `angle_prior` is a prior on a with std `angle_sigma`;
+    `angle_sigma` 0 fixes the angle to it."""
+    fixed = angle_prior is not None and angle_sigma == 0.0
+    if fixed:
         angle0 = angle_prior
     angle = search_angle(points, spacing) if angle0 is None else float(angle0)
-    d = points @ row_normal(angle)
-    offset = lattice_offset(d, spacing) if offset0 is None else float(offset0)
-    fixed = angle_prior is not None and angle_sigma == 0.0
+    offset = lattice_offset(points @ row_normal(angle), spacing) if offset0 is None else offset0
     for _ in range(GAUSS_NEWTON_ITERATIONS):
-        normal = row_normal(angle)
-        d = points @ normal
-        m = np.round((d - offset) / spacing)
-        r = d - offset - m * spacing
-        use = np.abs(r) < inlier * spacing
+        d = points @ row_normal(angle)
+        r = d - offset - np.round((d - offset) / spacing) * spacing
+        use = np.abs(r) < inlier
         if use.sum() < 2:
             break
-        # d r / d a = p . dn/da = -p . (cos a, sin a); d r / d o = -1
-        da = -(points[use] @ np.array([math.cos(angle), math.sin(angle)]))
         if fixed:
             offset += r[use].mean()
             continue
+        # d r / d a = p . dn/da = -p . (cos a, sin a); d r / d o = -1
+        da = -(points[use] @ np.array([math.cos(angle), math.sin(angle)]))
         jac = np.column_stack([da, -np.ones(use.sum())])
         lhs, rhs = jac.T @ jac, -jac.T @ r[use]
         if angle_prior is not None:
-            weight = (inlier * spacing / angle_sigma) ** 2
+            weight = (point_sigma / angle_sigma) ** 2
             lhs[0, 0] += weight
-            rhs[0] -= weight * (angle - angle_prior)
+            rhs[0] -= weight * math.remainder(angle - angle_prior, math.pi)
         step = np.linalg.lstsq(lhs, rhs, rcond=None)[0]
         angle, offset = angle + step[0], offset + step[1]
     return wrap_row_angle(angle), float(offset)
@@ -159,7 +157,8 @@ class RowTracker:
             offset0=None if self.angle is None else self.offset,
             angle_prior=self.angle_prior,
             angle_sigma=sigma,
-            inlier=0.25,
+            inlier=self.config.max_offset,
+            point_sigma=self.config.sigma_cross,
         )
         if previous is not None:
             # keep the lattice numbering: the new offset nearest the old one

@@ -1,0 +1,269 @@
+"""The graph back ends (sec. 2.6): the same small problems through the batch baseline,
+plain iSAM2 and iSAM2 with keyframes (folding every step, so that retired objects and
+their anchors are exercised), and a simulated survey through all three."""
+
+from __future__ import annotations
+
+import importlib.util
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from agrislam.config import RowsConfig, SlamConfig
+from agrislam.geometry.backend import (
+    RangeBearing,
+    RelativePosition,
+    detection_covariance,
+    make_backend,
+)
+from agrislam.geometry.batch import BatchBackend
+from agrislam.geometry.incremental import IncrementalBackend
+from agrislam.geometry.se2 import rotation
+
+BACKENDS = {
+    "batch": dict(backend="batch"),
+    "isam2": dict(backend="incremental", window=0),
+    "keyframes": dict(backend="incremental", window=1),
+}
+TIGHT = np.array([1e-4, 1e-4, 1e-5])
+EXACT_ODOMETRY = np.diag([1e-8, 1e-8, 1e-10])
+
+
+def backend(kind: str, **slam):
+    return make_backend(SlamConfig(**{**BACKENDS[kind], **slam}), RowsConfig())
+
+
+def observe_from(pose: np.ndarray, truth: np.ndarray) -> np.ndarray:
+    """Where a point of the map appears in the robot frame of `pose`."""
+    return rotation(pose[2]).T @ (truth - pose[:2])
+
+
+@pytest.fixture(params=list(BACKENDS))
+def kind(request):
+    return request.param
+
+
+def test_factory_builds_the_configured_back_end():
+    assert isinstance(backend("batch"), BatchBackend)
+    assert isinstance(backend("keyframes"), IncrementalBackend)
+
+
+def test_line_intersection_poor_depth_good_bearing(kind):
+    """Sec. 2.6.1: one plant seen from two poses, depth 0.4 m off each time (sigma 0.5 m)
+    but bearing sharp (0.005 m across): the graph puts it near the ray intersection."""
+    truth = np.array([1.0, 2.0])
+    poses = [np.zeros(3), np.array([2.0, 0.0, 0.0])]
+    g = backend(kind, robust_kernel="none")
+    g.add_robot("r", poses[0], TIGHT)
+    single = []
+    for n, (pose, depth_error) in enumerate(zip(poses, (0.4, -0.4), strict=True)):
+        if n:
+            g.add_odometry("r", float(n), poses[1] - poses[0], EXACT_ODOMETRY)
+        rel = observe_from(pose, truth)
+        xy = rel * (1 + depth_error / np.linalg.norm(rel))
+        single.append(pose[:2] + rotation(pose[2]) @ xy)
+        if n == 0:
+            g.add_object(0, single[0])
+        g.add_observation("r", 0, RelativePosition(xy, detection_covariance(xy, 0.5, 0.005)))
+        g.update()
+    for n in range(2, 12):  # the robot stands still: iSAM2 relinearises every 10th step
+        g.add_odometry("r", float(n), np.zeros(3), EXACT_ODOMETRY)
+        g.update()
+    error = np.linalg.norm(g.object_positions(np.array([0]))[0] - truth)
+    assert min(np.linalg.norm(s - truth) for s in single) == pytest.approx(0.4)
+    assert error < 0.02
+
+
+def test_object_covariance_is_the_detection_covariance_turned_into_the_map(kind):
+    theta = 0.7
+    xy = np.array([2.0, 0.5])
+    cov = detection_covariance(xy, 0.1, 0.03)
+    g = backend(kind, robust_kernel="none")
+    g.add_robot("r", np.array([1.0, -1.0, theta]), TIGHT)
+    g.add_object(3, np.array([1.0, -1.0]) + rotation(theta) @ xy)
+    g.add_observation("r", 3, RelativePosition(xy, cov))
+    g.update()
+    expected = rotation(theta) @ cov @ rotation(theta).T  # + the tiny start-pose prior
+    np.testing.assert_allclose(g.object_covariances(np.array([3]))[0], expected, atol=2e-6)
+    # a second, identical detection halves it (Gaussian fusion)
+    g.add_odometry("r", 1.0, np.zeros(3), EXACT_ODOMETRY)
+    g.add_observation("r", 3, RelativePosition(xy, cov))
+    g.update()
+    np.testing.assert_allclose(g.object_covariances(np.array([3]))[0], expected / 2, atol=2e-6)
+
+
+def test_range_bearing_measurement(kind):
+    g = backend(kind)
+    g.add_robot("r", np.array([0.0, 0.0, math.pi / 2]), TIGHT)
+    g.add_object(0, np.array([0.1, 2.9]))
+    g.add_observation("r", 0, RangeBearing(3.0, 0.0, 0.05, 0.01))
+    g.update()
+    for n in range(1, 11):  # iSAM2 relinearises every 10th step
+        g.add_odometry("r", float(n), np.zeros(3), EXACT_ODOMETRY)
+        g.update()
+    np.testing.assert_allclose(g.object_positions(np.array([0]))[0], [0.0, 3.0], atol=1e-3)
+
+
+def test_huber_kernel_resists_an_outlier(kind):
+    truth = np.array([3.0, 1.0])
+    estimates = {}
+    for kernel in ("huber", "none"):
+        g = backend(kind, robust_kernel=kernel)
+        g.add_robot("r", np.zeros(3), TIGHT)
+        g.add_object(0, truth + 0.05)
+        for n in range(7):
+            pose = np.array([0.2 * n, 0.0, 0.0])
+            if n:
+                g.add_odometry("r", float(n), np.array([0.2, 0.0, 0.0]), EXACT_ODOMETRY)
+            xy = observe_from(pose, truth) + (np.array([0.0, 1.0]) if n == 6 else 0.0)
+            g.add_observation("r", 0, RelativePosition(xy, detection_covariance(xy, 0.1, 0.03)))
+            g.update()
+        estimates[kernel] = np.linalg.norm(g.object_positions(np.array([0]))[0] - truth)
+    assert estimates["huber"] < 0.5 * estimates["none"]
+
+
+def two_copies(kind: str, merged: bool):
+    """A plant seen 4 times; with `merged` the last 2 detections first made a duplicate."""
+    truth = np.array([2.0, 0.5])
+    g = backend(kind, robust_kernel="none")
+    g.add_robot("r", np.zeros(3), TIGHT)
+    offsets = [
+        np.array([0.05, 0.0]),
+        np.array([-0.03, 0.02]),
+        np.array([0.0, -0.04]),
+        np.array([0.02, 0.03]),
+    ]
+    for n, offset in enumerate(offsets):
+        pose = np.array([0.3 * n, 0.0, 0.0])
+        if n:
+            g.add_odometry("r", float(n), np.array([0.3, 0.0, 0.0]), EXACT_ODOMETRY)
+        obj = 1 if merged and n >= 2 else 0
+        if n == 0 or (obj == 1 and n == 2):
+            g.add_object(obj, truth + offset)
+        xy = observe_from(pose, truth + offset)
+        g.add_observation("r", obj, RelativePosition(xy, detection_covariance(xy, 0.1, 0.03)))
+        g.update()
+    return g
+
+
+def test_merge_moves_every_factor_to_the_kept_object(kind):
+    single = two_copies(kind, merged=False)
+    g = two_copies(kind, merged=True)
+    g.merge_objects(0, 1)
+    g.update()
+    assert g.object_ids().tolist() == [0]
+    assert all(1 not in f.keys for f in g.graph.factors.values())
+    expected = single.object_positions(np.array([0]))
+    np.testing.assert_allclose(g.object_positions(np.array([0])), expected, atol=2e-3)
+    np.testing.assert_allclose(
+        g.object_covariances(np.array([0])), single.object_covariances(np.array([0])), atol=1e-4
+    )
+    with pytest.raises(KeyError, match="object 1"):
+        g.object_positions(np.array([1]))
+
+
+def test_remove_object_drops_it_and_keeps_the_rest(kind):
+    g = two_copies(kind, merged=True)
+    g.remove_object(1)
+    g.update()
+    assert g.object_ids().tolist() == [0]
+    g.add_odometry("r", 9.0, np.zeros(3), EXACT_ODOMETRY)
+    g.add_observation("r", 0, RelativePosition(np.array([1.1, 0.5]), np.eye(2) * 1e-2))
+    g.update()
+    assert np.all(np.isfinite(g.object_positions(np.array([0]))))
+
+
+def test_second_robot_without_start_pose_is_placed_by_shared_objects(kind):
+    plants = np.array([[2.0, 1.0], [3.0, -1.0], [4.0, 0.5]])
+    g = backend(kind, robust_kernel="none")
+    g.add_robot("a", np.zeros(3), TIGHT)
+    for i, p in enumerate(plants):
+        g.add_object(i, p)
+        xy = observe_from(np.zeros(3), p)
+        g.add_observation("a", i, RelativePosition(xy, detection_covariance(xy, 0.02, 0.01)))
+    g.update()
+    b_truth = np.array([1.0, 0.8, 0.4])  # Gauss-Newton (iSAM2) needs a start this near
+    g.add_robot("b", None, np.array([10.0, 10.0, math.pi]))  # as the world does
+    for i, p in enumerate(plants):
+        xy = observe_from(b_truth, p)
+        g.add_observation("b", i, RelativePosition(xy, detection_covariance(xy, 0.02, 0.01)))
+    g.update()
+    for _ in range(12):  # iSAM2 relinearises every 10th step: from the far-off start
+        g.add_odometry("b", 1.0, np.zeros(3), EXACT_ODOMETRY)
+        g.update()
+    np.testing.assert_allclose(g.current_pose("b")[:2], b_truth[:2], atol=0.05)
+    times, poses = g.trajectory("a")
+    assert poses.shape == (1, 3) and times.shape == (1,)
+
+
+def test_bad_input_names_what_and_where():
+    g = backend("keyframes")
+    g.add_robot("r", np.zeros(3))
+    with pytest.raises(KeyError, match="robot 'x'"):
+        g.add_odometry("x", 1.0, np.zeros(3), np.eye(3))
+    with pytest.raises(ValueError, match=r"odometry of robot 'r' at t=1\.0.*positive definite"):
+        g.add_odometry("r", 1.0, np.zeros(3), -np.eye(3))
+    with pytest.raises(ValueError, match="delta must be 3 finite"):
+        g.add_odometry("r", 1.0, np.array([0.0, np.nan, 0.0]), np.eye(3))
+    with pytest.raises(KeyError, match="object 5"):
+        g.add_observation("r", 5, RelativePosition(np.ones(2), np.eye(2)))
+    g.add_object(5, np.ones(2))
+    with pytest.raises(ValueError, match="already exists"):
+        g.add_object(5, np.ones(2))
+    with pytest.raises(ValueError, match="non-negative"):
+        g.add_object(-1, np.ones(2))
+    with pytest.raises(ValueError, match=r"observation of object 5 by 'r'.*symmetric"):
+        g.add_observation("r", 5, RelativePosition(np.ones(2), np.array([[1.0, 0.2], [0.0, 1.0]])))
+    with pytest.raises(ValueError, match=r"observation of object 5 by 'r'.*range must be > 0"):
+        g.add_observation("r", 5, RangeBearing(-1.0, 0.0, 0.1, 0.01))
+    with pytest.raises(ValueError, match="not solved yet"):
+        g.object_covariances(np.array([5]))
+    with pytest.raises(ValueError, match="already in the graph"):
+        g.add_robot("r")
+
+
+# ------------------------------------------------------------------ simulated survey
+def bench():
+    """benchmarks/bench_geometry.py: its simulated surveys and driver, tested here too."""
+    path = Path(__file__).parents[1] / "benchmarks" / "bench_geometry.py"
+    spec = importlib.util.spec_from_file_location("bench_geometry", path)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules["bench_geometry"] = module  # its dataclasses look their module up
+    spec.loader.exec_module(module)
+    return module
+
+
+@pytest.fixture(scope="module")
+def small_survey():
+    b = bench()
+    return b, b.make_survey(60, n_rows=3)
+
+
+def test_keyframes_stay_close_to_batch_and_refine_is_batch(small_survey):
+    b, survey = small_survey
+    maps = {}
+    for name, slam in {
+        "batch": SlamConfig(backend="batch"),
+        "keyframes": SlamConfig(window=20),
+    }.items():
+        g = make_backend(slam, RowsConfig())
+        _, ids, complete, _ = b.drive(g, survey, None, float("inf"))
+        assert complete
+        maps[name] = b.positions(g, ids)
+        if name == "keyframes":
+            assert g.rolls >= len(survey.steps) // 20
+            n_nodes = sum(len(c.keys) for c in g.graph.robots.values()) + len(ids)
+            assert g.live_size() < n_nodes / 3  # the past is folded away
+            online = dict(maps[name])
+            g.refine()
+            maps["refined"] = b.positions(g, ids)
+    ids = list(maps["batch"])
+    gap = [np.linalg.norm(online[k] - maps["batch"][k]) for k in ids]
+    refined = [np.linalg.norm(maps["refined"][k] - maps["batch"][k]) for k in ids]
+    assert np.sqrt(np.mean(np.square(gap))) < 0.05
+    assert max(refined) < 1e-3
+    err = {name: b.rms_error(m, survey.truth) for name, m in maps.items()}
+    assert err["keyframes"] < 1.1 * err["batch"]
