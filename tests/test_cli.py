@@ -3,6 +3,7 @@ recorded log through `agrislam run`, the config, and bad config values."""
 
 import json
 
+import numpy as np
 import pytest
 from typer.testing import CliRunner
 
@@ -85,3 +86,21 @@ def test_run_stops_at_a_bad_line_in_strict_mode_and_skips_it_in_lenient(small_ru
     assert strict.exit_code == 1 and "51" in strict.output
     lenient = runner.invoke(app, ["run", str(broken), "--out", str(tmp_path / "l")])
     assert lenient.exit_code == 0 and "1 bad line" in lenient.output
+
+
+def test_the_simulated_survey_as_an_mcap_bag_gives_the_same_map(small_run, tmp_path):
+    """simulate --record sim.mcap, then run the bag: the map equals the JSONL run's."""
+    out, _ = small_run
+    bag = tmp_path / "sim.mcap"
+    args = ["simulate", "--plants", "60", "--seed", "3", "--out", str(tmp_path / "a")]
+    assert runner.invoke(app, [*args, "--record", str(bag)]).exit_code == 0
+    result = runner.invoke(app, ["run", str(bag), "--out", str(tmp_path / "b")])
+    assert result.exit_code == 0, result.output
+    from agrislam.sinks.sqlite import load_map
+
+    jsonl_map, bag_map = load_map(out / "map.sqlite"), load_map(tmp_path / "b" / "map.sqlite")
+    assert np.array_equal(jsonl_map.objects.ids, bag_map.objects.ids)
+    np.testing.assert_allclose(bag_map.objects.xy, jsonl_map.objects.xy, atol=1e-6)
+    for name, belief in jsonl_map.objects.discrete.items():
+        np.testing.assert_allclose(bag_map.objects.discrete[name], belief, atol=1e-9)
+    assert (tmp_path / "b" / "map.mcap").stat().st_size > 0

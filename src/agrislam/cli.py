@@ -84,7 +84,13 @@ def simulate(
 
 @app.command()
 def run(
-    log: Annotated[Path, typer.Argument(exists=True, help="Survey log (.jsonl).")],
+    log: Annotated[
+        Path,
+        typer.Argument(
+            exists=True,
+            help="Survey log (.jsonl), rosbag2 folder (sqlite3/MCAP), .mcap file or ROS 1 .bag.",
+        ),
+    ],
     config: ConfigOption = None,
     out: OutOption = Path("runs/run"),
     strict: Annotated[
@@ -92,17 +98,30 @@ def run(
     ] = False,
 ) -> None:
     """Map a recorded survey."""
-    from agrislam.sources.jsonl import LogError, read_log
+    data = load_mapping(config) if config else {}
+    bag_data = data.pop("bag", None)
+    cfg = AgrislamConfig.model_validate(data)
+    if _is_bag(log):
+        from agrislam.sources.rosbag import BagSourceConfig, open_bag_source
 
-    cfg = AgrislamConfig.load(config) if config else AgrislamConfig()
-    reader = read_log(log, strict=strict)
-    try:
-        result = _run(reader, cfg, out, f"mapping {log.name}")
-    except LogError as err:
-        console.print(f"[red]{err}[/] (use --lenient to skip bad lines)")
-        raise typer.Exit(1) from None
-    console.print(reader.report.summary())
+        records, report = open_bag_source(log, cfg, BagSourceConfig.model_validate(bag_data or {}))
+        result = _run(records, cfg, out, f"mapping {log.name}")
+    else:
+        from agrislam.sources.jsonl import LogError, read_log
+
+        records = read_log(log, strict=strict)
+        try:
+            result = _run(records, cfg, out, f"mapping {log.name}")
+        except LogError as err:
+            console.print(f"[red]{err}[/] (use --lenient to skip bad lines)")
+            raise typer.Exit(1) from None
+        report = records.report
+    console.print(report.summary())
     _summary(result, out)
+
+
+def _is_bag(path: Path) -> bool:
+    return path.is_dir() or path.suffix in (".mcap", ".bag", ".db3")
 
 
 @app.command("config")

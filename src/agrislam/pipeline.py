@@ -5,6 +5,7 @@ kept aside for scoring. What the CLI runs, for any source."""
 from __future__ import annotations
 
 import dataclasses
+import importlib.util
 import time
 from collections import Counter
 from collections.abc import Callable, Iterable, Iterator
@@ -18,8 +19,10 @@ from agrislam.evaluation import evaluate, truth_trajectories, write_metrics
 from agrislam.perception.label_map import LabelMap
 from agrislam.records import Detections, Meta, Record, TruthObject, TruthPose
 from agrislam.sinks.csv import write_objects_csv, write_trajectory_csv
+from agrislam.sinks.foxglove import write_foxglove_mcap
 from agrislam.sinks.geojson import write_geojson
 from agrislam.sinks.report import write_report
+from agrislam.sinks.ros_map import write_map_mcap
 from agrislam.sinks.sqlite import save_map
 from agrislam.snapshot import MapSnapshot
 from agrislam.sources.sync import synchronise
@@ -135,6 +138,11 @@ def write_outputs(
     if snapshot.anchor is not None:
         written.append(out_dir / "map.geojson")
         write_geojson(snapshot, written[-1])
+    written.append(out_dir / "map.mcap")  # MarkerArray + Path, for RViz and Foxglove
+    write_map_mcap(snapshot, written[-1], overwrite=True)
+    if importlib.util.find_spec("foxglove") is not None:  # the optional `foxglove` extra
+        written.append(out_dir / "map_foxglove.mcap")
+        write_foxglove_mcap(snapshot, written[-1], overwrite=True)
     written.append(out_dir / "report.png")
     write_report(snapshot, written[-1], metrics=metrics, truth=truth_trajectories(truth.poses))
     if metrics is not None:

@@ -1,0 +1,139 @@
+"""The whole pipeline against ground truth and the clock (issue 5's targets).
+
+Prints, for the default 400-plant simulation and seeds 1-5: plants mapped, duplicates and
+false objects, colour and size accuracy, trajectory RMS (optimised vs dead reckoning),
+association purity/completeness and step times, for agrislam's default configuration,
+with rows off, and with the paper's batch back end (the baseline); then Victoria Park
+without truth ids; then a 10,000-plant survey at 1 frame per second (real time).
+
+    python benchmarks/bench_pipeline.py [--seeds 1 2 3 4 5] [--skip-batch] [--skip-large]
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from rich.console import Console
+from rich.table import Table
+
+from agrislam.config import AgrislamConfig, load_mapping
+from agrislam.pipeline import run_survey
+from agrislam.sim.config import SimConfig
+from agrislam.sim.simulator import Simulator
+from agrislam.sources.jsonl import read_log
+from agrislam.world import WorldModel
+
+ROOT = Path(__file__).resolve().parents[1]
+VICTORIA_PARK = ROOT.parent / "shared" / "data" / "victoria_park" / "victoria_park.jsonl"
+VARIANTS: dict[str, dict[str, Any]] = {
+    "agrislam": {},
+    "rows off": {"rows": {"enabled": False}},
+    "batch (paper)": {"slam": {"backend": "batch"}},
+}
+console = Console()
+
+
+def simulate(seed: int, plants: int, **path: Any) -> list:
+    cfg = SimConfig(seed=seed)
+    cfg.field.n_plants = plants
+    for key, value in path.items():
+        setattr(cfg.path, key, value)
+    return list(Simulator(cfg).records())
+
+
+def step_ms(snapshot_times: dict[str, np.ndarray]) -> np.ndarray:
+    return np.sum(list(snapshot_times.values()), axis=0) * 1e3
+
+
+def score_row(name: str, seed: int, result: Any) -> list[str]:
+    m = result.metrics
+    o, a, tr = m["objects"], m.get("association", {}), m["trajectory"]
+    ms = step_ms(result.snapshot.step_times)
+    return [
+        name,
+        str(seed),
+        f"{o['mapped_fraction']:.1%}",
+        f"{o['duplicates']} / {o['false_objects']}",
+        f"{m['attributes']['colour']['accuracy']:.1%}",
+        f"{m['attributes']['size']['accuracy']:.1%}",
+        f"{tr['optimised']['rms_position']:.3f} / {tr['dead_reckoning']['rms_position']:.3f}",
+        f"{a.get('purity', float('nan')):.3f} / {a.get('completeness', float('nan')):.3f}",
+        f"{np.median(ms):.1f} / {np.percentile(ms, 95):.1f} / {ms.max():.0f}",
+        f"{result.wall_seconds:.1f}",
+    ]
+
+
+def paper_simulation(seeds: list[int], variants: dict[str, dict[str, Any]]) -> None:
+    table = Table(
+        title="Default 400-plant simulation (targets: >=98 % mapped, <=1 % dup+false, "
+        "colour >=99 %, size >=95 %, trajectory <=0.10 m)"
+    )
+    for column in (
+        "variant",
+        "seed",
+        "mapped",
+        "dup / false",
+        "colour",
+        "size",
+        "traj RMS opt / DR (m)",
+        "purity / compl.",
+        "step ms p50/p95/max",
+        "wall s",
+    ):
+        table.add_column(column)
+    for seed in seeds:
+        records = simulate(seed, 400)
+        for name, overrides in variants.items():
+            world = WorldModel(AgrislamConfig.model_validate(overrides))
+            table.add_row(*score_row(name, seed, run_survey(records, world)))
+    console.print(table)
+
+
+def victoria_park() -> None:
+    cfg = AgrislamConfig.model_validate(load_mapping(ROOT / "examples" / "victoria_park.yaml"))
+    start = time.perf_counter()
+    result = run_survey(read_log(VICTORIA_PARK), WorldModel(cfg))
+    wall = time.perf_counter() - start
+    a = result.metrics["association"]
+    console.print(
+        f"Victoria Park: {len(result.snapshot.objects)} objects for {a['truths']} trees, "
+        f"purity {a['purity']:.3f}, completeness {a['completeness']:.3f} (targets >= 0.95), "
+        f"whole log {wall:.1f} s (target < 60 s)"
+    )
+
+
+def large_field(plants: int) -> None:
+    """A whole field at 1 frame per second: every step must finish within the second."""
+    records = simulate(1, plants, frame_rate_hz=1.0)
+    result = run_survey(records, WorldModel(AgrislamConfig()))
+    ms = step_ms(result.snapshot.step_times)
+    o = result.metrics["objects"]
+    console.print(
+        f"{plants} plants at 1 frame/s: {len(ms)} steps, step time median {np.median(ms):.1f} ms, "
+        f"p95 {np.percentile(ms, 95):.1f} ms, max {ms.max():.0f} ms (budget 1000 ms); "
+        f"mapped {o['mapped_fraction']:.1%}, trajectory RMS "
+        f"{result.metrics['trajectory']['optimised']['rms_position']:.3f} m; "
+        f"wall {result.wall_seconds:.0f} s"
+    )
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--seeds", type=int, nargs="+", default=[1, 2, 3, 4, 5])
+    parser.add_argument("--skip-batch", action="store_true", help="leave out the slow baseline")
+    parser.add_argument("--skip-large", action="store_true", help="leave out the 10,000 plants")
+    parser.add_argument("--plants", type=int, default=10_000, help="size of the large field")
+    args = parser.parse_args()
+    variants = {k: v for k, v in VARIANTS.items() if not (args.skip_batch and "batch" in k)}
+    paper_simulation(args.seeds, variants)
+    victoria_park()
+    if not args.skip_large:
+        large_field(args.plants)
+
+
+if __name__ == "__main__":
+    main()
