@@ -159,3 +159,22 @@ def test_weeds_off_the_rows_are_not_pulled_onto_them(survey_runs):
     # and the rows did not move them: as far off their truth as without rows
     off, on = (cross_row_error(survey, runs[r][3], weeds) for r in (False, True))
     assert on < off + 0.02
+
+
+def test_turning_a_row_replaces_its_constraints():
+    points = rows_of_points(n_rows=2, per_row=4, noise=0.0)
+    g = backend_with_objects(points)
+    tracker = RowTracker(RowsConfig(n_det_est=2, min_detections=1))
+    tracker.after_step(g, np.arange(len(points)), len(points))
+    before = sorted(f.value[0] for f in g.graph.factors.values() if f.kind == ROW_MEMBER)
+    assert before == pytest.approx([ANGLE] * 8, abs=1e-3)
+    g.set_row_angle(0, 0.0)
+    g.update()
+    angles = {
+        (f.keys[0], round(float(f.value[0]), 6))
+        for f in g.graph.factors.values()
+        if f.kind in (ROW_MEMBER, ROW_SPACING)
+    }
+    rows = sorted({k for k, _ in angles})
+    assert {a for k, a in angles if k == rows[0]} == {0.0}
+    assert g.graph.rows[0].angle == 0.0

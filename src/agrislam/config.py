@@ -271,13 +271,21 @@ class SlamConfig(_Strict):
     batch_optimizer: Literal["lm", "dogleg"] = "lm"
     robust_kernel: Literal["huber", "cauchy", "none"] = "huber"
     robust_k: float = Field(1.345, gt=0.0, description="kernel width in standard deviations")
-    relinearize_threshold: float = Field(0.1, gt=0.0)
-    relinearize_skip: int = Field(10, ge=1)
+    relinearize_threshold: float = Field(
+        0.05, gt=0.0, description="iSAM2 relinearises a node that moved more than this (m, rad)"
+    )
+    relinearize_skip: int = Field(1, ge=1, description="iSAM2 checks that every n-th step")
     window: int = Field(
         100,
         ge=0,
         description="steps between keyframes; older poses and objects are folded onto the "
         "keyframes so a step's cost stays bounded; 0 = plain iSAM2 over the whole graph",
+    )
+    refine_turn_deg: float = Field(
+        3.0,
+        ge=0.0,
+        description="with keyframes: refine() by itself once a keyframe has turned this much "
+        "since history was folded onto it (a large loop closure); 0 = never",
     )
 
 

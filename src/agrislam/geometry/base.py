@@ -217,6 +217,17 @@ class BackendBase:
         factor = Factor(ROW_SPACING, (akey, bkey), value, self.rows_config.sigma_spacing)
         self._add(self.graph.add_factor(factor))
 
+    def set_row_angle(self, row: int, angle: float) -> None:
+        """Turn a row: its node's constraints are replaced by ones at `angle` (a refit)."""
+        key = self.graph.require_row(row)
+        self.graph.rows[row].angle = float(angle)
+        for fid in self.graph.factor_ids(key):
+            factor = self.graph.remove_factor(fid)
+            value = factor.value.copy()
+            value[2 if factor.kind == ROW_ANCHOR else 0] = angle
+            new = Factor(factor.kind, factor.keys, value, factor.cov)
+            self._replace(fid, self.graph.add_factor(new))
+
     def remove_row(self, row: int) -> None:
         """Drop a row node with all its constraints."""
         key = self.graph.require_row(row)

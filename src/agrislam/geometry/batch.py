@@ -115,7 +115,7 @@ class BatchBackend(BackendBase):
         for n, object_id in enumerate(object_ids):
             key = self.graph.require_object(int(object_id))
             if key in self._guess:
-                raise ValueError(f"object {object_id} has no observation yet: no covariance")
+                raise ValueError(f"object {object_id} has no observation yet")
             if key not in self._cov_cache:
                 if self._marginals is None:
                     self._marginals = gtsam.Marginals(self._factors, self._values)

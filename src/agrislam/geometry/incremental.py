@@ -22,6 +22,7 @@ carries on from that solution; call it at the end of a survey, or when time allo
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import gtsam
@@ -30,7 +31,7 @@ import numpy as np
 from agrislam.config import RowsConfig, SlamConfig
 from agrislam.geometry.base import BackendBase, pose_array
 from agrislam.geometry.batch import insert_value, solve, value_array
-from agrislam.geometry.graph import POSE, ROW, key_kind, make_factor
+from agrislam.geometry.graph import POSE, ROW, SurveyGraph, key_index, key_kind, make_factor
 from agrislam.geometry.noise import gaussian, relative_to_range_bearing
 from agrislam.geometry.se2 import between, compose, rotation
 
@@ -121,11 +122,12 @@ class IncrementalBackend(BackendBase):
         self._retired_pose: dict[int, tuple[int, np.ndarray]] = {}  # key -> (keyframe, rel)
         self._keyframes: dict[str, list[int]] = {}  # robot -> its keyframes, oldest first
         self._last_seen: dict[int, tuple[str, int]] = {}  # object key -> (robot, step)
-        self._global: gtsam.ISAM2 | None = None
         self._cov_cache: dict[int, np.ndarray] = {}
         self._step = 0
         self._window_start = 0
+        self._folded_heading: dict[int, float] = {}  # keyframe -> heading when folded onto
         self.rolls = 0
+        self.refines = 0
 
     # ------------------------------------------------------------ solver hooks
     def _insert(self, key: int, value: np.ndarray) -> None:
@@ -138,6 +140,12 @@ class IncrementalBackend(BackendBase):
         first = self.graph.robot(robot).keys[0]
         self._permanent.add(first)
         self._keyframes[robot] = [first]
+
+    def load(self, graph: SurveyGraph, values: dict[int, np.ndarray]) -> None:
+        super().load(graph, values)
+        for robot, chain in graph.robots.items():
+            self._permanent.add(chain.keys[0])
+            self._keyframes[robot] = [chain.keys[0]]
 
     def _enter(self, key: int) -> None:
         """Bring a node into the iSAM2 graph: new, or retired and tied to its keyframe."""
@@ -245,6 +253,19 @@ class IncrementalBackend(BackendBase):
         self._step += 1
         if self.window and self._step - self._window_start >= self.window:
             self._fold()
+            if self.slam.refine_turn_deg and self._turned() > math.radians(
+                self.slam.refine_turn_deg
+            ):
+                self.refine()
+
+    def _turned(self) -> float:
+        """Largest heading change of a keyframe since history was folded onto it: the
+        folded factors are linear in it, so past a few degrees they no longer hold."""
+        turned = [
+            abs(math.remainder(self._estimate(key)[2] - heading, math.tau))
+            for key, heading in self._folded_heading.items()
+        ]
+        return max(turned, default=0.0)
 
     def _solve_pending(self, extra: gtsam.NonlinearFactorGraph | None = None) -> None:
         new = gtsam.NonlinearFactorGraph()
@@ -291,6 +312,9 @@ class IncrementalBackend(BackendBase):
                         insert_value(point, key, self._estimate(key))
             self._retire(window, graph, point)
             marginal = self._marginal(graph, point, window)
+            for key in marginal.keyVector():
+                if key_kind(key) == POSE and key not in self._folded_heading:
+                    self._folded_heading[key] = point.atPose2(key).theta()
             for slot in slots:
                 del self._slot_keys[slot]
             self._removals.extend(slots)
@@ -413,6 +437,10 @@ class IncrementalBackend(BackendBase):
         self._slot = {fid: n for n, fid in enumerate(fids)}
         self._slot_keys = {n: tuple(live.at(n).keys()) for n in range(live.size())}
         self._anchor_slot.clear()
+        self._folded_heading = {
+            k: solution.atPose2(k).theta() for k in folded.keyVector() if key_kind(k) == POSE
+        }
+        self.refines += 1
 
     # ---------------------------------------------------------------- queries
     def _marginal_covariance(self, key: int) -> np.ndarray:
@@ -420,25 +448,62 @@ class IncrementalBackend(BackendBase):
             self._cov_cache[key] = self._isam.marginalCovariance(key)
         return self._cov_cache[key]
 
+    def _split(self, object_ids: np.ndarray) -> tuple[np.ndarray, list[int], list[Anchored]]:
+        """Which of the objects are retired (mask), the keys of the others, the anchors."""
+        retired = np.zeros(len(object_ids), dtype=bool)
+        live, anchors = [], []
+        for n, object_id in enumerate(object_ids):
+            key = self.graph.require_object(int(object_id))
+            anchor = self._anchored.get(key)
+            if anchor is None:
+                live.append(key)
+            else:
+                retired[n] = True
+                anchors.append(anchor)
+        return retired, live, anchors
+
+    def _keyframe_poses(self, anchors: list[Anchored]) -> tuple[np.ndarray, np.ndarray]:
+        """(k, 3) pose of each anchor's keyframe and (k, 2) its z, each keyframe read once."""
+        frames = {a.keyframe for a in anchors}
+        pose = {k: self._estimate(k) for k in frames}
+        return np.array([pose[a.keyframe] for a in anchors]), np.array([a.z for a in anchors])
+
+    def object_positions(self, object_ids: np.ndarray) -> np.ndarray:
+        """(k, 2) current estimates; a retired object's is its keyframe's pose (+) z, all
+        at once (a snapshot of a large map asks for every object)."""
+        retired, live, anchors = self._split(object_ids)
+        out = np.empty((len(object_ids), 2))
+        out[~retired] = np.array([self._estimate(k) for k in live]).reshape(-1, 2)
+        if anchors:
+            poses, z = self._keyframe_poses(anchors)
+            c, s = np.cos(poses[:, 2]), np.sin(poses[:, 2])
+            out[retired, 0] = poses[:, 0] + c * z[:, 0] - s * z[:, 1]
+            out[retired, 1] = poses[:, 1] + s * z[:, 0] + c * z[:, 1]
+        return out
+
     def object_covariances(self, object_ids: np.ndarray) -> np.ndarray:
         """(k, 2, 2) marginal covariances of the given objects, cached until the next step;
         a retired object's combines its keyframe's and its relative position's."""
+        if any(self.graph.require_object(int(i)) in self._pending_guess for i in object_ids):
+            self._solve_pending()  # entered since the last update (a merge): solve them now
+        retired, live, anchors = self._split(object_ids)
         out = np.empty((len(object_ids), 2, 2))
-        for n, object_id in enumerate(object_ids):
-            key = self.graph.require_object(int(object_id))
-            if key in self._pending_guess or key in self._guess:
-                raise ValueError(f"object {object_id} is not solved yet (call update first)")
-            if key in self._live:
-                out[n] = self._marginal_covariance(key)
-                continue
-            anchor = self._anchored[key]
-            kf_pose = self._estimate(anchor.keyframe)
-            rot = rotation(kf_pose[2])
-            z = anchor.z
+        for key in live:
+            if key in self._guess:
+                raise ValueError(f"object {key_index(key)} has no observation yet")
+        out[~retired] = np.array([self._marginal_covariance(k) for k in live]).reshape(-1, 2, 2)
+        if anchors:
+            poses, z = self._keyframe_poses(anchors)
+            rot = np.stack([rotation(t) for t in poses[:, 2]])
             # l = K (+) z: dl/d(dx, dy, dtheta) = R [[1, 0, -z_y], [0, 1, z_x]]; dl/dz = R
-            jac = rot @ np.array([[1.0, 0.0, -z[1]], [0.0, 1.0, z[0]]])
-            cov_k = self._marginal_covariance(anchor.keyframe)
-            out[n] = jac @ cov_k @ jac.T + rot @ anchor.cov @ rot.T
+            local = np.zeros((len(z), 2, 3))
+            local[:, 0, 0] = local[:, 1, 1] = 1.0
+            local[:, 0, 2], local[:, 1, 2] = -z[:, 1], z[:, 0]
+            jac = rot @ local
+            cov_k = np.stack([self._marginal_covariance(a.keyframe) for a in anchors])
+            cov_z = np.stack([a.cov for a in anchors])
+            rot_t = np.swapaxes(rot, 1, 2)
+            out[retired] = jac @ cov_k @ np.swapaxes(jac, 1, 2) + rot @ cov_z @ rot_t
         return out
 
     def live_size(self) -> int:

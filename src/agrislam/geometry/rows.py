@@ -22,6 +22,8 @@ from agrislam.snapshot import RowLines
 COARSE_STEP = math.radians(1.0)
 FINE_STEP = math.radians(0.05)
 GAUSS_NEWTON_ITERATIONS = 5
+# objects a fit uses at most
+FIT_POINTS = 3000
 # a refit that turns the rows by more than this rebuilds the row constraints
 REBUILD_ANGLE = math.radians(0.2)
 
@@ -139,9 +141,12 @@ class RowTracker:
             self._assign(backend, np.asarray(touched_object_ids, dtype=np.int64))
 
     def _fit_points(self, backend: GraphBackend) -> tuple[np.ndarray, np.ndarray]:
+        """Objects seen often enough, evenly thinned to at most FIT_POINTS: a refit of a
+        large field then costs no more than one of a mid-sized one."""
         ids = backend.object_ids()
         seen = np.array([self._seen.get(int(i), 0) for i in ids], dtype=np.int64)
         ids = ids[seen >= self.config.min_detections]
+        ids = ids[:: max(1, -(-len(ids) // FIT_POINTS))]
         return ids, backend.object_positions(ids)
 
     def _fit(self, backend: GraphBackend) -> None:
@@ -169,13 +174,9 @@ class RowTracker:
             self._rebuild(backend)
 
     def _rebuild(self, backend: GraphBackend) -> None:
-        """The rows turned: new row nodes and constraints at the new angle."""
-        members = backend.object_ids()
-        members = members[backend.rows_of(members) >= 0]
+        """The rows turned: their constraints are replaced by ones at the new angle."""
         for row in self._row_of_index.values():
-            backend.remove_row(row)
-        self._row_of_index.clear()
-        self._assign(backend, members)
+            backend.set_row_angle(row, self.angle)
 
     def _assign(self, backend: GraphBackend, object_ids: np.ndarray) -> None:
         """Plants within max_offset of a row get a constraint to it (none along it)."""
