@@ -314,7 +314,7 @@ class MaintenanceConfig(_Strict):
 
     merge: bool = True
     prune: bool = True
-    prune_max_meas: int = Field(1, ge=0, description="objects seen at most this often may go")
+    prune_max_meas: int = Field(2, ge=0, description="objects seen at most this often may go")
     prune_min_interest: float = Field(0.6, ge=0.0, le=1.0)
     prune_grace_s: float = Field(20.0, ge=0.0, description="s unseen before pruning")
 

@@ -68,16 +68,17 @@ class Pruner:
         for i in ids:
             self._young.pop(i, None)
 
-    def due(self, beliefs: BeliefTable, t: float) -> list[int]:
-        """Objects to prune now; objects that grew out of youth are dropped from watch."""
+    def due(self, beliefs: BeliefTable, t: float, grace: float | None = None) -> list[int]:
+        """Objects to prune now; objects that grew out of youth are dropped from watch.
+        `grace` overrides the configured grace period (0 at the end of a survey)."""
+        grace = self.config.prune_grace_s if grace is None else grace
         if not self._young:
             return []
         ids = np.fromiter(self._young, dtype=int, count=len(self._young))
         n_meas = beliefs.n_meas[ids]
         grown = ids[n_meas > self.config.prune_max_meas]
         expired = ids[
-            (n_meas <= self.config.prune_max_meas)
-            & (beliefs.last_update[ids] < t - self.config.prune_grace_s)
+            (n_meas <= self.config.prune_max_meas) & (beliefs.last_update[ids] <= t - grace)
         ]
         self.forget(grown.tolist())
         if len(expired) == 0:

@@ -86,6 +86,7 @@ def run_survey(
                 truth.detection_objects.append(report.object_ids)
         if progress is not None:
             progress()
+    world.finish()
     wall = time.perf_counter() - start
     for frame, reason in synced.unplaced:
         issues[f"frame of {frame.robot!r} not placed: {reason}"] += 1

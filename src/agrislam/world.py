@@ -285,7 +285,15 @@ class WorldModel:
         self.pruner.watch(new_ids)
         return new_ids
 
-    def _maintain(self, touched: np.ndarray, t: float) -> MaintenanceResult:
+    def finish(self) -> MaintenanceResult:
+        """End of the survey: the young uncertain objects still waiting for their grace
+        period will not be seen again; prune them now."""
+        t = float(self.beliefs.last_update.max(initial=0.0))
+        return self._maintain(np.empty(0, dtype=int), t, grace=0.0)
+
+    def _maintain(
+        self, touched: np.ndarray, t: float, grace: float | None = None
+    ) -> MaintenanceResult:
         """Merge touched objects closer than d_inter; prune young uncertain ones."""
         cfg, result = self.config.maintenance, MaintenanceResult()
         touched = touched[self._status[touched] == STATUS_ACTIVE]
@@ -304,7 +312,7 @@ class WorldModel:
                 self._retire(drop, STATUS_MERGED, into=keep)
             result.merged = pairs
         if cfg.prune:
-            for obj in self.pruner.due(self.beliefs, t):
+            for obj in self.pruner.due(self.beliefs, t, grace):
                 if self._status[obj] == STATUS_ACTIVE:
                     self.backend.remove_object(obj)
                     self._retire(obj, STATUS_PRUNED)
