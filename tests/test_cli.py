@@ -42,7 +42,7 @@ def test_a_bad_config_value_names_the_field(tmp_path):
 def small_run(tmp_path_factory):
     out = tmp_path_factory.mktemp("sim")
     log = out / "survey.jsonl"
-    args = ["simulate", "--plants", "60", "--seed", "3", "--out", str(out), "--record", str(log)]
+    args = ["simulate", "--plants", "150", "--seed", "3", "--out", str(out), "--record", str(log)]
     result = runner.invoke(app, args)
     assert result.exit_code == 0, result.output
     return out, log
@@ -92,7 +92,7 @@ def test_the_simulated_survey_as_an_mcap_bag_gives_the_same_map(small_run, tmp_p
     """simulate --record sim.mcap, then run the bag: the map equals the JSONL run's."""
     out, _ = small_run
     bag = tmp_path / "sim.mcap"
-    args = ["simulate", "--plants", "60", "--seed", "3", "--out", str(tmp_path / "a")]
+    args = ["simulate", "--plants", "150", "--seed", "3", "--out", str(tmp_path / "a")]
     assert runner.invoke(app, [*args, "--record", str(bag)]).exit_code == 0
     result = runner.invoke(app, ["run", str(bag), "--out", str(tmp_path / "b")])
     assert result.exit_code == 0, result.output
