@@ -21,7 +21,10 @@ from agrislam.config import RowsConfig, SlamConfig
 from agrislam.geometry.backend import RangeBearing, make_backend
 from agrislam.geometry.se2 import compose
 
-DATA = Path("/work/shared/data/victoria_park/victoria_park.txt")
+# the shared folder stands beside the repository (as in CI)
+DATA = (
+    Path(__file__).resolve().parents[2] / "shared" / "data" / "victoria_park" / "victoria_park.txt"
+)
 START_SIGMA = np.array([1e-3, 1e-3, 1e-4])  # as the dataset's survey log (meta) has it
 TOLERANCE = 0.05  # m RMS
 
