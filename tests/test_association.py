@@ -131,3 +131,20 @@ def test_spatial_index_finds_tree_and_fresh_objects_within_radius():
     assert index.query(np.array([[10.0, 0.2]]), 0.5).tolist() == [2]
     index.forget(np.array([0]))
     assert index.query(np.array([[0.0, 0.0]]), 0.1).tolist() == []
+
+
+def test_per_pair_covariance_and_a_wider_gate():
+    """K_n + R_m per pair and gate_chi2: e = (1, 0), S = 2 I -> e^T S^-1 e = 0.5, / 4."""
+    k = np.array([[[1.0, 0.0], [0.0, 1.0]]])
+    per_pair = k[None] + np.eye(2)[None, None]  # (1, 1, 2, 2)
+    got = distance_term(np.zeros((1, 2)), np.array([[1.0, 0.0]]), per_pair, 0.1, gate_chi2=4.0)
+    assert got[0, 0] == pytest.approx(0.125)
+
+
+def test_pose_uncertainty_grows_with_distance_through_the_heading():
+    from agrislam.geometry.se2 import pose_uncertainty_at
+
+    pose_cov = np.diag([0.01, 0.04, 0.001])
+    cov = pose_uncertainty_at(np.zeros(3), pose_cov, np.array([[2.0, 0.0]]))[0]
+    # a point 2 m ahead: x takes the pose's x variance, y its y variance + (2 m)^2 var(theta)
+    np.testing.assert_allclose(cov, [[0.01, 0.0], [0.0, 0.04 + 4 * 0.001]])

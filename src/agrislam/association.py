@@ -95,16 +95,22 @@ def semantic_term(
 
 
 def distance_term(
-    detection_xy: np.ndarray, object_xy: np.ndarray, object_cov: np.ndarray, d_inter: float
+    detection_xy: np.ndarray,
+    object_xy: np.ndarray,
+    covariance: np.ndarray,
+    d_inter: float,
+    gate_chi2: float = 1.0,
 ) -> np.ndarray:
-    """min(|e|^2 / d_inter^2, e^T K_n^-1 e) for every detection x object pair: (m, k)."""
+    """min(|e|^2 / d_inter^2, e^T K^-1 e / gate_chi2) for every detection x object pair:
+    (m, k). `covariance` is K_n per object (k, 2, 2), as sec. 2.4, or per pair (m, k, 2, 2)."""
     e = object_xy[None, :, :] - detection_xy[:, None, :]  # e_mn = z_n - z_m
     euclidean = np.einsum("mki,mki->mk", e, e) / d_inter**2
-    a, b, c = object_cov[:, 0, 0], object_cov[:, 0, 1], object_cov[:, 1, 1]
-    det = a * c - b * b
+    k = np.broadcast_to(covariance, (*e.shape[:2], 2, 2))
+    a, b, c = k[..., 0, 0], k[..., 0, 1], k[..., 1, 1]
     ex, ey = e[..., 0], e[..., 1]
-    mahalanobis = (c * ex * ex - 2 * b * ex * ey + a * ey * ey) / det  # closed-form 2x2 inverse
-    return np.minimum(euclidean, mahalanobis)
+    # closed-form 2x2 inverse
+    mahalanobis = (c * ex * ex - 2 * b * ex * ey + a * ey * ey) / (a * c - b * b)
+    return np.minimum(euclidean, mahalanobis / gate_chi2)
 
 
 def association_matrix(
@@ -117,15 +123,11 @@ def association_matrix(
     t: float,
 ) -> np.ndarray:
     """The matrix A of sec. 2.4 over the frame's detections x candidate objects."""
-    distance = distance_term(detections.xy, object_xy, object_cov, config.d_inter)
+    covariance = object_cov
     if config.detection_covariance:
         # innovation covariance K_n + R_m per pair (a deviation from sec. 2.4, see config)
-        s = object_cov[None, :, :, :] + detections.cov[:, None, :, :]
-        e = object_xy[None, :, :] - detections.xy[:, None, :]
-        a, b, c = s[..., 0, 0], s[..., 0, 1], s[..., 1, 1]
-        ex, ey = e[..., 0], e[..., 1]
-        mahalanobis = (c * ex * ex - 2 * b * ex * ey + a * ey * ey) / (a * c - b * b)
-        distance = np.minimum(np.einsum("mki,mki->mk", e, e) / config.d_inter**2, mahalanobis)
+        covariance = object_cov[None, :, :, :] + detections.cov[:, None, :, :]
+    distance = distance_term(detections.xy, object_xy, covariance, config.d_inter, config.gate_chi2)
     if not config.use_semantics:
         return distance
     semantic = semantic_term(beliefs, object_ids, detections.measurements, config.w_sem, t)

@@ -252,8 +252,14 @@ class AssociationConfig(_Strict):
     use_semantics: bool = True
     detection_covariance: bool = Field(
         False,
-        description="use K_n + R_m (object and detection covariance) in the distance term "
-        "instead of the paper's K_n alone",
+        description="compare e against K_n + R_m (object, detection and robot pose "
+        "uncertainty, DESIGN step 3) instead of the paper's K_n alone",
+    )
+    gate_chi2: float = Field(
+        1.0,
+        gt=0.0,
+        description="the Mahalanobis term is divided by this (the paper: 1, a one-sigma "
+        "gate); e.g. 9.21 accepts 99 %% of true associations of a 2D position",
     )
     gate_sigma_max: float = Field(
         1.0, gt=0.0, description="m; largest object position sigma the spatial gate allows for"

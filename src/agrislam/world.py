@@ -245,7 +245,12 @@ class WorldModel:
             return PlacedDetections(np.empty((0, 2)), np.empty((0, 2, 2)), [])
         xy = self.depth_bias.correct(np.stack([d.position() for d in detections]))
         cov = np.stack([self._robot_frame_cov(d) for d in detections])
-        map_xy, map_cov = se2.to_map_frame(self.backend.current_pose(robot), xy, cov)
+        pose = self.backend.current_pose(robot)
+        map_xy, map_cov = se2.to_map_frame(pose, xy, cov)
+        if self.config.association.detection_covariance:  # plus the robot pose uncertainty
+            map_cov = map_cov + se2.pose_uncertainty_at(
+                pose, self.backend.current_pose_covariance(robot), xy
+            )
         measurements = [informative_measurements(self.schema, d.attributes) for d in detections]
         return PlacedDetections(map_xy, map_cov, measurements, xy, cov)
 
@@ -255,7 +260,8 @@ class WorldModel:
         if len(placed) == 0:
             return np.empty(0, dtype=int)
         n_measured = max(len(m) for m in placed.measurements) if cfg.use_semantics else 0
-        radius = max_association_distance(cfg.d_inter, cfg.gate_sigma_max, cfg.w_sem, n_measured)
+        sigma = cfg.gate_sigma_max * np.sqrt(cfg.gate_chi2)  # the Mahalanobis term's reach
+        radius = max_association_distance(cfg.d_inter, sigma, cfg.w_sem, n_measured)
         candidates = self.index.query(placed.xy, radius)
         if len(candidates) == 0:
             return np.full(len(placed), -1)

@@ -109,6 +109,15 @@ class BatchBackend(BackendBase):
     def refine(self) -> None:
         self.update()
 
+    def current_pose_covariance(self, robot: str) -> np.ndarray:
+        """(3, 3) marginal covariance of the robot's latest pose (x, y, theta)."""
+        key = self.graph.robot(robot).keys[-1]
+        if key not in self._cov_cache:
+            if self._marginals is None:
+                self._marginals = gtsam.Marginals(self._factors, self._values)
+            self._cov_cache[key] = self._marginals.marginalCovariance(key)
+        return self._cov_cache[key]
+
     def object_covariances(self, object_ids: np.ndarray) -> np.ndarray:
         """(k, 2, 2) marginal covariances; one factorisation of the graph per step, cached."""
         out = np.empty((len(object_ids), 2, 2))

@@ -443,6 +443,12 @@ class IncrementalBackend(BackendBase):
         self.refines += 1
 
     # ---------------------------------------------------------------- queries
+    def current_pose_covariance(self, robot: str) -> np.ndarray:
+        """(3, 3) marginal covariance of the robot's latest pose (x, y, theta)."""
+        if self._pending_guess:
+            self._solve_pending()
+        return self._marginal_covariance(self.graph.robot(robot).keys[-1])
+
     def _marginal_covariance(self, key: int) -> np.ndarray:
         if key not in self._cov_cache:
             self._cov_cache[key] = self._isam.marginalCovariance(key)

@@ -55,3 +55,14 @@ def to_map_frame(
 def to_robot_frame(pose: np.ndarray, xy: np.ndarray) -> np.ndarray:
     """Map-frame points (m, 2) into the frame of the robot at `pose`."""
     return (xy - pose[:2]) @ rotation(pose[2])
+
+
+def pose_uncertainty_at(pose: np.ndarray, pose_cov: np.ndarray, xy: np.ndarray) -> np.ndarray:
+    """(m, 2, 2) map-frame covariance that a pose's (3, 3) uncertainty gives robot-frame
+    points xy (m, 2): J cov J^T with J = d(R(theta) p + t) / d(x, y, theta) = [I, R' p]."""
+    c, s = np.cos(pose[2]), np.sin(pose[2])
+    d_theta = np.column_stack([-s * xy[:, 0] - c * xy[:, 1], c * xy[:, 0] - s * xy[:, 1]])
+    jac = np.zeros((len(xy), 2, 3))
+    jac[:, 0, 0] = jac[:, 1, 1] = 1.0
+    jac[:, :, 2] = d_theta
+    return jac @ pose_cov @ jac.transpose(0, 2, 1)
