@@ -292,8 +292,10 @@ class WorldModel:
         return new_ids
 
     def finish(self) -> MaintenanceResult:
-        """End of the survey: the young uncertain objects still waiting for their grace
-        period will not be seen again; prune them now."""
+        """End of the survey: solve the whole graph once more (the real-time estimate
+        folds history away, sec. 2.6), and prune the young uncertain objects still
+        waiting for their grace period: they will not be seen again."""
+        self.backend.refine()
         t = float(self.beliefs.last_update.max(initial=0.0))
         return self._maintain(np.empty(0, dtype=int), t, grace=0.0)
 
