@@ -259,7 +259,7 @@ class AssociationConfig(_Strict):
         1.0,
         gt=0.0,
         description="the Mahalanobis term is divided by this (the paper: 1, a one-sigma "
-        "gate); e.g. 9.21 accepts 99 %% of true associations of a 2D position",
+        "gate); e.g. 9.21 accepts 99 % of true associations of a 2D position",
     )
     gate_sigma_max: float = Field(
         1.0, gt=0.0, description="m; largest object position sigma the spatial gate allows for"
