@@ -116,7 +116,9 @@ def large_field(plants: int) -> None:
         f"{plants} plants at 1 frame/s: {len(ms)} steps, step time median {np.median(ms):.1f} ms, "
         f"p95 {np.percentile(ms, 95):.1f} ms, max {ms.max():.0f} ms (budget 1000 ms); "
         f"mapped {o['mapped_fraction']:.1%}, trajectory RMS "
-        f"{result.metrics['trajectory']['optimised']['rms_position']:.3f} m; "
+        f"{result.metrics['trajectory']['optimised']['rms_position']:.3f} m "
+        f"(dead reckoning {result.metrics['trajectory']['dead_reckoning']['rms_position']:.3f} m), "
+        f"association purity {result.metrics['association']['purity']:.3f}; "
         f"wall {result.wall_seconds:.0f} s"
     )
 
