@@ -34,7 +34,7 @@ VARIANTS: dict[str, dict[str, Any]] = {
     "rows off": {"rows": {"enabled": False}},
     "batch (paper)": {"slam": {"backend": "batch"}},
 }
-console = Console()
+console = Console(width=170)
 
 
 def simulate(seed: int, plants: int, **path: Any) -> list:
