@@ -20,6 +20,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
+from agrislam.geometry.se2 import rotation, wrap_angle
 from agrislam.records import TruthObject, TruthPose
 from agrislam.snapshot import MapSnapshot, Trajectory
 
@@ -31,22 +32,13 @@ def rigid_fit(src: np.ndarray, dst: np.ndarray) -> tuple[float, np.ndarray]:
     cs, cd = src.mean(axis=0), dst.mean(axis=0)
     h = (src - cs).T @ (dst - cd)
     angle = math.atan2(h[0, 1] - h[1, 0], h[0, 0] + h[1, 1])
-    return angle, cd - _rot(angle) @ cs
-
-
-def _rot(angle: float) -> np.ndarray:
-    c, s = math.cos(angle), math.sin(angle)
-    return np.array([[c, -s], [s, c]])
-
-
-def _wrap(a: np.ndarray) -> np.ndarray:
-    return (a + np.pi) % (2 * np.pi) - np.pi
+    return angle, cd - rotation(angle) @ cs
 
 
 def _transform_poses(poses: np.ndarray, angle: float, t: np.ndarray) -> np.ndarray:
     out = poses.copy()
-    out[:, :2] = poses[:, :2] @ _rot(angle).T + t
-    out[:, 2] = _wrap(poses[:, 2] + angle)
+    out[:, :2] = poses[:, :2] @ rotation(angle).T + t
+    out[:, 2] = wrap_angle(poses[:, 2] + angle)
     return out
 
 
@@ -118,7 +110,7 @@ def truth_at(t_truth: np.ndarray, truth: np.ndarray, t: np.ndarray) -> np.ndarra
         [
             np.interp(t, t_truth, truth[:, 0]),
             np.interp(t, t_truth, truth[:, 1]),
-            _wrap(np.interp(t, t_truth, theta)),
+            wrap_angle(np.interp(t, t_truth, theta)),
         ]
     )
 
@@ -141,7 +133,7 @@ def trajectory_errors(
         if robot not in tracks or len(est.t) == 0:
             continue
         e, t = _paired_poses(est, tracks[robot])
-        dp, dh = np.linalg.norm(e[:, :2] - t[:, :2], axis=1), _wrap(e[:, 2] - t[:, 2])
+        dp, dh = np.linalg.norm(e[:, :2] - t[:, :2], axis=1), wrap_angle(e[:, 2] - t[:, 2])
         per_robot[robot] = {"rms_position": _rms(dp), "rms_heading": _rms(dh), "n": len(dp)}
         pos.append(dp)
         head.append(dh)
@@ -251,7 +243,7 @@ def _icp(est: np.ndarray, truth: np.ndarray, radius: float) -> tuple[float, np.n
     tree = cKDTree(truth)
     n = 0
     for gate in np.geomspace(max(1.0, 4 * radius), radius, 15):
-        moved = est @ _rot(angle).T + t
+        moved = est @ rotation(angle).T + t
         d, j = tree.query(moved, distance_upper_bound=gate)
         ok = np.isfinite(d)
         if ok.sum() < 3:
@@ -304,7 +296,7 @@ def evaluate(
             "translation": [float(shift[0]), float(shift[1])],
             "n_pairs": n_pairs,
         }
-        est_xy = est_xy @ _rot(angle).T + shift
+        est_xy = est_xy @ rotation(angle).T + shift
         optimised = {
             r: Trajectory(r, tr.t, _transform_poses(tr.poses, angle, shift))
             for r, tr in optimised.items()

@@ -52,6 +52,7 @@ from rosbags.highlevel import AnyReader, AnyReaderError
 from rosbags.interfaces import MessageDefinitionFormat
 
 from agrislam.config import AgrislamConfig, FieldSchema
+from agrislam.geometry.se2 import between, compose
 from agrislam.perception.camera import (
     PinholeCamera,
     quaternion_from_yaw,
@@ -216,23 +217,6 @@ def _pose_matrix(pose: Any) -> np.ndarray:
 def _planar(T: np.ndarray) -> np.ndarray:
     """x, y, yaw of a 4x4 transform."""
     return np.array([T[0, 3], T[1, 3], math.atan2(T[1, 0], T[0, 0])])
-
-
-def _compose(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """SE(2) pose a (+) b."""
-    c, s = math.cos(a[2]), math.sin(a[2])
-    return np.array([a[0] + c * b[0] - s * b[1], a[1] + s * b[0] + c * b[1], _wrap(a[2] + b[2])])
-
-
-def _between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """SE(2) motion from pose a to pose b, in the frame of a."""
-    c, s = math.cos(a[2]), math.sin(a[2])
-    dx, dy = b[0] - a[0], b[1] - a[1]
-    return np.array([c * dx + s * dy, -s * dx + c * dy, _wrap(b[2] - a[2])])
-
-
-def _wrap(a: float) -> float:
-    return (a + math.pi) % (2 * math.pi) - math.pi
 
 
 def _measurement_class_id(name: str, m: Measurement) -> tuple[str, float]:
@@ -606,7 +590,7 @@ class _BagReader:
         self.odom_state[robot] = (pose, full)
         cov = self._increment_cov(topic, stamp, full, pose, prev)
         if self.bag.odometry_form == "delta":
-            delta = pose if prev is None else _between(prev[0], pose)
+            delta = pose if prev is None else between(prev[0], pose)
             self._emit(Odometry(stamp, robot, delta=delta, cov=cov))
         else:
             self._emit(Odometry(stamp, robot, pose=pose, cov=cov))
@@ -895,7 +879,7 @@ class _SurveyBagWriter:
             pose = np.asarray(rec.pose, dtype=float)
         else:  # integrate the increments into the odometry-frame pose nav_msgs carries
             previous = self.odom_pose.get(rec.robot, np.zeros(3))
-            pose = _compose(previous, np.asarray(rec.delta, dtype=float))
+            pose = compose(previous, np.asarray(rec.delta, dtype=float))
         self.odom_pose[rec.robot] = pose
         cov6 = np.zeros((6, 6))
         if rec.cov is None:
