@@ -8,9 +8,10 @@ Odometry between frames is kept and composed into the frame's pose.
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from collections import defaultdict
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 
@@ -408,14 +409,21 @@ class WorldModel:
         previous, robot.odom_pose = robot.odom_pose, pose
         return None if previous is None else se2.between(previous, pose)
 
+    def _range_bearing_sigmas(self, det: Detection) -> tuple[float, float]:
+        """A range/bearing detection's sigmas, or the configured defaults."""
+        sensor = self.config.sensor
+        return (
+            det.sigma_range or sensor.detection_sigma_depth,
+            det.sigma_bearing or sensor.detection_sigma_lateral / max(det.range, 1e-6),
+        )
+
     def _robot_frame_cov(self, det: Detection) -> np.ndarray:
         if det.cov is not None:
             return det.cov
-        sensor = self.config.sensor
         if det.range is not None:
-            sr = det.sigma_range or sensor.detection_sigma_depth
-            sb = det.sigma_bearing or sensor.detection_sigma_lateral / max(det.range, 1e-6)
-            return detection_covariance(det.position(), sr, sb * det.range)
+            sigma_range, sigma_bearing = self._range_bearing_sigmas(det)
+            return detection_covariance(det.position(), sigma_range, sigma_bearing * det.range)
+        sensor = self.config.sensor
         return detection_covariance(
             det.position(), sensor.detection_sigma_depth, sensor.detection_sigma_lateral
         )
@@ -425,13 +433,7 @@ class WorldModel:
     ) -> RelativePosition | RangeBearing:
         """The factor's measurement in the form the detection came in (xy: corrected)."""
         if det.range is not None and det.xy is None:
-            sensor = self.config.sensor
-            return RangeBearing(
-                float(np.hypot(*xy)),
-                det.bearing,
-                det.sigma_range or sensor.detection_sigma_depth,
-                det.sigma_bearing or sensor.detection_sigma_lateral / max(det.range, 1e-6),
-            )
+            return RangeBearing(float(np.hypot(*xy)), det.bearing, *self._range_bearing_sigmas(det))
         return RelativePosition(xy, cov)
 
     def _checked(self, det: Detection) -> Detection:
@@ -441,16 +443,7 @@ class WorldModel:
         for name in bad:
             self.issues[f"measurement of {name!r} not in the schema: dropped"] += 1
         kept = {n: m for n, m in det.attributes.items() if n not in bad}
-        return Detection(
-            xy=det.xy,
-            cov=det.cov,
-            range=det.range,
-            bearing=det.bearing,
-            sigma_range=det.sigma_range,
-            sigma_bearing=det.sigma_bearing,
-            attributes=kept,
-            truth_id=det.truth_id,
-        )
+        return dataclasses.replace(det, attributes=kept)
 
     def _fits_schema(self, name: str, m: Measurement) -> bool:
         spec = self.schema.attributes.get(name) if self.schema is not None else None
@@ -505,11 +498,3 @@ class WorldModel:
         if self.schema is None:
             return []
         return list(self.schema.discrete if kind == "discrete" else self.schema.continuous)
-
-
-def run(records: Iterable[Record], world: WorldModel | None = None) -> WorldModel:
-    """Feed every record to a world model (a new one with default config if none given)."""
-    world = world or WorldModel()
-    for record in records:
-        world.process(record)
-    return world
