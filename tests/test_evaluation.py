@@ -277,3 +277,14 @@ def test_metrics_json_and_table(tmp_path):
     print_metrics(m, console)
     text = console.export_text()
     assert "plants mapped" in text and "11 / 12" in text and "dead reckoning" in text
+
+
+def test_the_table_leaves_out_what_the_log_has_no_truth_for():
+    # Victoria Park: which tree each detection saw, no tree positions, no true track
+    snap = _snapshot(_truth())
+    m = evaluate(snap, [], [], associations=[("tree1", 0), ("tree1", 0), ("tree2", 1)])
+    console = Console(record=True, width=100)
+    print_metrics(m, console)
+    text = console.export_text()
+    assert "association purity" in text and "100.0 %" in text
+    assert "false objects" not in text and "dead reckoning" not in text
