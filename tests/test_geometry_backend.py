@@ -324,3 +324,12 @@ def test_dogleg_batch_reaches_the_lm_solution():
     np.testing.assert_allclose(
         dogleg.object_positions(np.array([0])), lm.object_positions(np.array([0])), atol=1e-5
     )
+
+
+def test_qr_and_cholesky_reach_the_same_map():
+    maps = {}
+    for factorization in ("qr", "cholesky"):
+        g = make_backend(SlamConfig(window=5, factorization=factorization), RowsConfig())
+        loop_survey(g)
+        maps[factorization] = g.object_positions(g.object_ids())
+    np.testing.assert_allclose(maps["qr"], maps["cholesky"], atol=1e-6)

@@ -281,6 +281,11 @@ class SlamConfig(_Strict):
         0.05, gt=0.0, description="iSAM2 relinearises a node that moved more than this (m, rad)"
     )
     relinearize_skip: int = Field(1, ge=1, description="iSAM2 checks that every n-th step")
+    factorization: Literal["qr", "cholesky"] = Field(
+        "qr",
+        description="iSAM2's linear solver: QR keeps working where a survey's uncertainty "
+        "spans many orders of magnitude and Cholesky finds the system indeterminate",
+    )
     window: int = Field(
         100,
         ge=0,

@@ -46,6 +46,7 @@ def isam2(slam: SlamConfig) -> gtsam.ISAM2:
     params = gtsam.ISAM2Params()
     params.setRelinearizeThreshold(slam.relinearize_threshold)
     params.relinearizeSkip = slam.relinearize_skip
+    params.setFactorization(slam.factorization.upper())
     return gtsam.ISAM2(params)
 
 
