@@ -10,6 +10,7 @@ from agrislam.association import (
     association_matrix,
     distance_term,
     informative_measurements,
+    innovation_covariance,
     max_association_distance,
     semantic_term,
 )
@@ -148,3 +149,28 @@ def test_pose_uncertainty_grows_with_distance_through_the_heading():
     cov = pose_uncertainty_at(np.zeros(3), pose_cov, np.array([[2.0, 0.0]]))[0]
     # a point 2 m ahead: x takes the pose's x variance, y its y variance + (2 m)^2 var(theta)
     np.testing.assert_allclose(cov, [[0.01, 0.0], [0.0, 0.04 + 4 * 0.001]])
+
+
+def test_innovation_covariance_takes_the_tighter_of_absolute_and_relative():
+    r = np.diag([0.4, 0.4])
+    placed = PlacedDetections(
+        np.zeros((1, 2)), r[None], [{}], np.zeros((1, 2)), r[None], np.diag([9.0, 9.0])[None]
+    )
+    object_cov = np.stack([np.diag([16.0, 16.0]), np.diag([0.1, 0.1])])
+    drift = np.stack([np.diag([0.5, 0.5]), np.diag([0.5, 0.5])])[None]  # (1, 2, 2, 2)
+    got = innovation_covariance(placed, object_cov, drift, np.array([True, True]))
+    # object 0 was seen lately: R + R + drift = 1.3 beats K + R + pose = 25.4
+    assert got[0, 0] == pytest.approx(np.diag([1.3, 1.3]))
+    # object 1 is known well in the map, but its chain is tighter still (1.3 < 9.5)
+    assert got[0, 1] == pytest.approx(np.diag([1.3, 1.3]))
+    # without a chain from the robot (another robot saw it last), only the absolute bound
+    got = innovation_covariance(placed, object_cov, drift, np.array([True, False]))
+    assert got[0, 1] == pytest.approx(np.diag([9.5, 9.5]))
+    # a long drift since: the absolute bound is the tighter one
+    far = np.stack([np.diag([50.0, 50.0]), np.diag([50.0, 50.0])])[None]
+    got = innovation_covariance(placed, object_cov, far, np.array([True, True]))
+    assert got[0, 0] == pytest.approx(np.diag([25.4, 25.4]))
+    assert got[0, 1] == pytest.approx(np.diag([9.5, 9.5]))
+    # no pose marginal, no chain: K_n + R_m
+    bare = PlacedDetections(np.zeros((1, 2)), r[None], [{}])
+    assert innovation_covariance(bare, object_cov)[0, 1] == pytest.approx(np.diag([0.5, 0.5]))

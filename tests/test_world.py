@@ -158,3 +158,50 @@ def test_both_back_ends_build_the_same_map(backend):
     snap = world.snapshot()
     d = np.linalg.norm(snap.objects.xy[:, None] - PLANTS[None], axis=2).min(axis=1)
     assert len(snap.objects) == len(PLANTS) and d.max() < 0.02
+
+
+@pytest.mark.parametrize("chain", [True, False])
+def test_near_neighbours_stay_apart_while_the_robot_is_lost_in_the_map(chain):
+    # a robot that hardly knows where it is in the map (5 m start sigma) sees plants 1 m
+    # apart one at a time: each is known well relative to the robot, so the innovation
+    # covariance must come from the odometry chain, not from the absolute marginals
+    plants = np.column_stack([np.arange(1.0, 7.0), np.zeros(6)])
+    world = WorldModel(
+        config(association={"detection_covariance": True, "gate_chi2": 5.99, "gate_sigma_max": 3})
+    )
+    if not chain:  # as if every plant had been last seen by another robot
+        since_seen = world.drift.since_seen
+        world.drift.since_seen = lambda *a: (since_seen(*a)[0], np.zeros(len(a[1]), bool))
+    world.process(Meta(robots={"r1": RobotStart(np.zeros(3), np.array([5.0, 5.0, 0.05]))}))
+    poses = straight(0.0, 6.0, 0.0, 25)
+
+    def narrow(pose, plants, colours=COLOURS):
+        return seen_from(pose, plants, colours, max_range=0.8)
+
+    for k, pose in enumerate(poses):
+        if k:
+            delta = np.array([poses[k][0] - poses[k - 1][0], 0.0, 0.0])
+            world.process(Odometry(float(k), "r1", delta=delta, cov=np.diag([1e-4, 1e-4, 1e-5])))
+        world.process(Detections(float(k), "r1", narrow(pose, plants)))
+    objects = len(world.active_ids())
+    if chain:
+        assert objects == 6
+    else:  # the absolute bound lets a new plant pass for its neighbour
+        assert objects < 6
+
+
+def test_odometry_sigmas_are_widened_by_the_configured_factors():
+    world = WorldModel(config(sensor={"odom_sigma_scale": [1.0, 2.0, 10.0]}))
+    world.process(Meta(robots={"r1": RobotStart(np.zeros(3), np.full(3, 1e-3))}))
+    world.process(Detections(0.0, "r1", ()))
+    cov = np.diag([1e-4, 1e-4, 1e-6])
+    world.process(Odometry(1.0, "r1", delta=np.array([0.5, 0.0, 0.0]), cov=cov))
+    world.process(Detections(1.0, "r1", ()))
+    odometry = [f for f in world.backend.graph.factors.values() if f.kind == "odometry"]
+    assert len(odometry) == 1
+    np.testing.assert_allclose(odometry[0].cov, np.diag([1e-4, 4e-4, 1e-4]))
+
+
+def test_a_sigma_scale_must_be_positive():
+    with pytest.raises(ValueError, match="odom_sigma_scale"):
+        config(sensor={"odom_sigma_scale": [1.0, 0.0, 2.0]})

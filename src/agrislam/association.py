@@ -35,6 +35,7 @@ class PlacedDetections:
     measurements: Sequence[Mapping[str, Measurement]]
     robot_xy: np.ndarray | None = None  # (m, 2) the same detections in the robot frame
     robot_cov: np.ndarray | None = None  # (m, 2, 2)
+    pose_cov: np.ndarray | None = None  # (m, 2, 2) what the robot's pose marginal adds
 
     def __len__(self) -> int:
         return len(self.xy)
@@ -113,6 +114,31 @@ def distance_term(
     return np.minimum(euclidean, mahalanobis / gate_chi2)
 
 
+def innovation_covariance(
+    detections: PlacedDetections,
+    object_cov: np.ndarray,
+    drift_cov: np.ndarray | None = None,
+    drift_known: np.ndarray | None = None,
+) -> np.ndarray:
+    """(m, k, 2, 2) covariance of e_mn, the tighter of two upper bounds (a deviation from
+    sec. 2.4's K_n, see `association.detection_covariance`):
+
+    - absolute: K_n + R_m + the robot pose marginal at the detection, which ignores that
+      the robot and an object it saw lately are uncertain together;
+    - relative (where the robot's chain since it last saw n is known): R_m for the
+      detection, R_m again for the object relative to the pose that last saw it, and the
+      chain's drift in between (geometry/drift.py).
+    """
+    pose_cov = detections.pose_cov if detections.pose_cov is not None else 0.0
+    absolute = object_cov[None, :, :, :] + (detections.cov + pose_cov)[:, None, :, :]
+    if drift_cov is None or drift_known is None or not drift_known.any():
+        return absolute
+    relative = 2.0 * detections.cov[:, None, :, :] + drift_cov
+    trace = np.trace(relative, axis1=2, axis2=3) < np.trace(absolute, axis1=2, axis2=3)
+    tighter = drift_known[None, :] & trace
+    return np.where(tighter[..., None, None], relative, absolute)
+
+
 def association_matrix(
     detections: PlacedDetections,
     object_ids: np.ndarray,
@@ -121,12 +147,11 @@ def association_matrix(
     beliefs: BeliefTable,
     config: AssociationConfig,
     t: float,
+    innovation: np.ndarray | None = None,
 ) -> np.ndarray:
-    """The matrix A of sec. 2.4 over the frame's detections x candidate objects."""
-    covariance = object_cov
-    if config.detection_covariance:
-        # innovation covariance K_n + R_m per pair (a deviation from sec. 2.4, see config)
-        covariance = object_cov[None, :, :, :] + detections.cov[:, None, :, :]
+    """The matrix A of sec. 2.4 over the frame's detections x candidate objects; with
+    `innovation` (m, k, 2, 2) the distance term compares e to it instead of K_n."""
+    covariance = object_cov if innovation is None else innovation
     distance = distance_term(detections.xy, object_xy, covariance, config.d_inter, config.gate_chi2)
     if not config.use_semantics:
         return distance

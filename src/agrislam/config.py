@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import Annotated, Any, Literal
 
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import BaseModel, ConfigDict, Field, PositiveFloat, model_validator
 
 SECONDS_PER_DAY = 86_400.0
 
@@ -222,6 +222,11 @@ class SensorDefaults(_Strict):
     """Uncertainties used when a record does not carry its own."""
 
     odom_cov_diag: tuple[float, float, float] = (1e-4, 1e-4, 4e-6)
+    odom_sigma_scale: tuple[PositiveFloat, PositiveFloat, PositiveFloat] = Field(
+        (1.0, 1.0, 1.0),
+        description="factors on every odometry sigma (x, y, heading), the record's or the "
+        "default: for wheel odometry whose stated covariance is overconfident",
+    )
     detection_sigma_depth: float = Field(0.10, gt=0.0, description="m, along the viewing ray")
     detection_sigma_lateral: float = Field(0.03, gt=0.0, description="m, across the ray")
     depth_bias: float = Field(
@@ -252,8 +257,9 @@ class AssociationConfig(_Strict):
     use_semantics: bool = True
     detection_covariance: bool = Field(
         False,
-        description="compare e against K_n + R_m (object, detection and robot pose "
-        "uncertainty, DESIGN step 3) instead of the paper's K_n alone",
+        description="compare e against its whole covariance instead of the paper's K_n "
+        "alone: the tighter of K_n + R_m + the robot pose marginal (DESIGN step 3) and "
+        "R_m + the robot's drift since it last saw the object (association.py)",
     )
     gate_chi2: float = Field(
         1.0,

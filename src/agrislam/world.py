@@ -23,6 +23,7 @@ from agrislam.association import (
     assign,
     association_matrix,
     informative_measurements,
+    innovation_covariance,
     max_association_distance,
 )
 from agrislam.config import AgrislamConfig, FieldSchema
@@ -34,6 +35,7 @@ from agrislam.geometry.backend import (
     make_backend,
 )
 from agrislam.geometry.depth_bias import DepthBiasEstimator
+from agrislam.geometry.drift import OdometryDrift
 from agrislam.geometry.rows import RowTracker
 from agrislam.maintenance import MaintenanceResult, Pruner, merge_pairs
 from agrislam.records import (
@@ -128,6 +130,7 @@ class WorldModel:
         self._steps_since_rebuild = 0
         self.pruner = Pruner(self.config.maintenance)
         self.depth_bias = DepthBiasEstimator(self.config.sensor.depth_bias)
+        self.drift = OdometryDrift()
         self.anchor = None
         self.issues: dict[str, int] = defaultdict(int)
         self._robots: dict[str, _Robot] = {}
@@ -177,7 +180,9 @@ class WorldModel:
         delta = self._increment(robot, odom)
         if delta is None:
             return
-        cov = odom.cov if odom.cov is not None else np.diag(self.config.sensor.odom_cov_diag)
+        sensor = self.config.sensor
+        cov = odom.cov if odom.cov is not None else np.diag(sensor.odom_cov_diag)
+        cov = cov * np.outer(sensor.odom_sigma_scale, sensor.odom_sigma_scale)
         if robot.pending is None:
             robot.pending = (delta, cov)
         else:
@@ -202,8 +207,9 @@ class WorldModel:
         with timer("place"):
             placed = self._place(frame.robot, detections)
         with timer("associate"):
-            object_ids = self._associate(placed, t)
+            object_ids = self._associate(frame.robot, placed, t)
             new_ids = self._create_objects(object_ids, placed, t)
+            self.drift.seen(frame.robot, object_ids)
         with timer("beliefs"):
             self.beliefs.update(object_ids, [d.attributes for d in detections], t)
         with timer("geometry"):
@@ -237,6 +243,7 @@ class WorldModel:
         if robot.pending is not None:
             delta, cov = robot.pending
             self.backend.add_odometry(robot_name, t, delta, cov)
+            self.drift.advance(robot_name, robot.dead_reckoning, cov)
             robot.pending = None
 
     def _place(self, robot: str, detections: list[Detection]) -> PlacedDetections:
@@ -248,14 +255,15 @@ class WorldModel:
         cov = np.stack([self._robot_frame_cov(d) for d in detections])
         pose = self.backend.current_pose(robot)
         map_xy, map_cov = se2.to_map_frame(pose, xy, cov)
-        if self.config.association.detection_covariance:  # plus the robot pose uncertainty
-            map_cov = map_cov + se2.pose_uncertainty_at(
+        pose_cov = None
+        if self.config.association.detection_covariance:  # the robot pose uncertainty
+            pose_cov = se2.pose_uncertainty_at(
                 pose, self.backend.current_pose_covariance(robot), xy
             )
         measurements = [informative_measurements(self.schema, d.attributes) for d in detections]
-        return PlacedDetections(map_xy, map_cov, measurements, xy, cov)
+        return PlacedDetections(map_xy, map_cov, measurements, xy, cov, pose_cov)
 
-    def _associate(self, placed: PlacedDetections, t: float) -> np.ndarray:
+    def _associate(self, robot: str, placed: PlacedDetections, t: float) -> np.ndarray:
         """GNN over the association matrix of gated candidates (sec. 2.4); -1 = new."""
         cfg = self.config.association
         if len(placed) == 0:
@@ -266,14 +274,21 @@ class WorldModel:
         candidates = self.index.query(placed.xy, radius)
         if len(candidates) == 0:
             return np.full(len(placed), -1)
+        object_cov = self.backend.object_covariances(candidates)
+        innovation = None
+        if cfg.detection_covariance:
+            heading = self.backend.current_pose(robot)[2]
+            drift = self.drift.since_seen(robot, candidates, placed.robot_xy, heading)
+            innovation = innovation_covariance(placed, object_cov, *drift)
         matrix = association_matrix(
             placed,
             candidates,
             self.backend.object_positions(candidates),
-            self.backend.object_covariances(candidates),
+            object_cov,
             self.beliefs,
             cfg,
             t,
+            innovation,
         )
         chosen = assign(matrix)
         return np.where(chosen >= 0, candidates[np.maximum(chosen, 0)], -1)
@@ -315,11 +330,7 @@ class WorldModel:
                 self.beliefs.n_meas,
                 self.config.association.d_inter,
             )
-            for keep, drop in pairs:
-                self.beliefs.fuse(keep, drop)
-                self.backend.merge_objects(keep, drop)
-                self._retire(drop, STATUS_MERGED, into=keep)
-            result.merged = pairs
+            result.merged = self._merge(pairs)
         if cfg.prune:
             for obj in self.pruner.due(self.beliefs, t, grace):
                 if self._status[obj] == STATUS_ACTIVE:
@@ -327,6 +338,15 @@ class WorldModel:
                     self._retire(obj, STATUS_PRUNED)
                     result.pruned.append(obj)
         return result
+
+    def _merge(self, pairs: list[tuple[int, int]]) -> list[tuple[int, int]]:
+        """Fold each `drop` into its `keep`: beliefs fused, graph nodes merged."""
+        for keep, drop in pairs:
+            self.beliefs.fuse(keep, drop)
+            self.backend.merge_objects(keep, drop)
+            self.drift.merge(keep, drop)
+            self._retire(drop, STATUS_MERGED, into=keep)
+        return pairs
 
     # ------------------------------------------------------------------ map out
 
@@ -395,6 +415,7 @@ class WorldModel:
                 robot.start_sigma = np.array([10.0, 10.0, np.pi])
             start = np.zeros(3) if robot.start_pose is None else robot.start_pose
             self.backend.add_robot(name, start, robot.start_sigma, t)
+            self.drift.start(name, start)
             robot.dead_reckoning, robot.started = start.copy(), True
             robot.dr_t.append(t)
             robot.dr_poses.append(robot.dead_reckoning)
@@ -483,6 +504,7 @@ class WorldModel:
         self._status[obj] = status
         self._merged_into[obj] = into
         self.index.forget(np.array([obj]))
+        self.drift.forget(np.array([obj]))
         self.pruner.forget([obj])
 
     def _grow_status(self, n: int) -> None:
