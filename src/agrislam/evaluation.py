@@ -380,18 +380,19 @@ def print_metrics(metrics: Mapping[str, Any], console: Any = None) -> None:
     table = Table(title="Map against ground truth", show_header=True)
     table.add_column("metric")
     table.add_column("value", justify="right")
-    table.add_row(
-        "plants mapped", f"{o['mapped']} / {o['n_truth']} ({_fmt(o['mapped_fraction'], pct=True)})"
-    )
-    table.add_row("missed", str(o["missed"]))
-    table.add_row("duplicates", f"{o['duplicates']} ({_fmt(o['duplicate_fraction'], pct=True)})")
-    table.add_row("false objects", str(o["false_objects"]))
-    table.add_row("object position RMS", _fmt(o["position_rms"], " m"))
-    for name, a in metrics.get("attributes", {}).items():
-        if "accuracy" in a:
-            table.add_row(f"{name} accuracy", _fmt(a["accuracy"], pct=True))
-        else:
-            table.add_row(f"{name} RMS", _fmt(a["rms"], " m"))
+    if o["n_truth"]:  # a log may know only which plant each detection saw
+        mapped = f"{o['mapped']} / {o['n_truth']} ({_fmt(o['mapped_fraction'], pct=True)})"
+        table.add_row("plants mapped", mapped)
+        table.add_row("missed", str(o["missed"]))
+        duplicates = f"{o['duplicates']} ({_fmt(o['duplicate_fraction'], pct=True)})"
+        table.add_row("duplicates", duplicates)
+        table.add_row("false objects", str(o["false_objects"]))
+        table.add_row("object position RMS", _fmt(o["position_rms"], " m"))
+        for name, a in metrics.get("attributes", {}).items():
+            if "accuracy" in a:
+                table.add_row(f"{name} accuracy", _fmt(a["accuracy"], pct=True))
+            else:
+                table.add_row(f"{name} RMS", _fmt(a["rms"], " m"))
     assoc = metrics.get("association")
     if assoc and "purity" in assoc:
         table.add_row("association purity", _fmt(assoc["purity"], pct=True))
@@ -405,7 +406,7 @@ def print_metrics(metrics: Mapping[str, Any], console: Any = None) -> None:
         )
     console.print(table)
     traj = metrics.get("trajectory", {})
-    if traj:
+    if traj and traj["optimised"]["n"]:
         t = Table(title="Trajectory error (RMS)", show_header=True)
         t.add_column("")
         t.add_column("optimised", justify="right")
