@@ -45,14 +45,10 @@ def simulate(seed: int, plants: int, **path: Any) -> list:
     return list(Simulator(cfg).records())
 
 
-def step_ms(snapshot_times: dict[str, np.ndarray]) -> np.ndarray:
-    return np.sum(list(snapshot_times.values()), axis=0) * 1e3
-
-
 def score_row(name: str, seed: int, result: Any) -> list[str]:
     m = result.metrics
     o, a, tr = m["objects"], m.get("association", {}), m["trajectory"]
-    ms = step_ms(result.snapshot.step_times)
+    ms = result.snapshot.step_seconds() * 1e3
     return [
         name,
         str(seed),
@@ -110,7 +106,7 @@ def large_field(plants: int) -> None:
     """A whole field at 1 frame per second: every step must finish within the second."""
     records = simulate(1, plants, frame_rate_hz=1.0)
     result = run_survey(records, WorldModel(AgrislamConfig()))
-    ms = step_ms(result.snapshot.step_times)
+    ms = result.snapshot.step_seconds() * 1e3
     o = result.metrics["objects"]
     console.print(
         f"{plants} plants at 1 frame/s: {len(ms)} steps, step time median {np.median(ms):.1f} ms, "

@@ -288,3 +288,10 @@ def test_the_table_leaves_out_what_the_log_has_no_truth_for():
     text = console.export_text()
     assert "association purity" in text and "100.0 %" in text
     assert "false objects" not in text and "dead reckoning" not in text
+
+
+def test_a_steps_time_is_the_sum_of_its_stages():
+    times = {"associate": np.array([0.001, 0.002]), "geometry": np.array([0.010, 0.030])}
+    snap = _snapshot(_truth(), extra={"step_times": times})
+    np.testing.assert_allclose(snap.step_seconds(), [0.011, 0.032])
+    assert len(_snapshot(_truth()).step_seconds()) == 0

@@ -171,11 +171,10 @@ def _summary(result: RunResult, out: Path) -> None:
     table.add_row("objects mapped", str(len(objects)))
     table.add_row("frames", str(frames))
     table.add_row("wall time", f"{result.wall_seconds:.1f} s")
-    steps = result.snapshot.step_times
-    if steps:
+    total = result.snapshot.step_seconds() * 1e3
+    if len(total):
         import numpy as np
 
-        total = np.sum([v for v in steps.values()], axis=0) * 1e3
         table.add_row(
             "step time (ms)",
             f"median {np.median(total):.1f}, p95 {np.percentile(total, 95):.1f}, "

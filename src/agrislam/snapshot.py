@@ -58,3 +58,9 @@ class MapSnapshot:
     rows: RowLines | None = None
     interest_surface: InterestSurface | None = None
     step_times: dict[str, np.ndarray] = field(default_factory=dict)  # stage -> s per step
+
+    def step_seconds(self) -> np.ndarray:
+        """Each step's whole time (s), its stages summed."""
+        if not self.step_times:
+            return np.zeros(0)
+        return np.sum([np.asarray(t, dtype=float) for t in self.step_times.values()], axis=0)
