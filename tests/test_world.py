@@ -82,8 +82,10 @@ def test_a_detection_far_from_every_object_starts_a_new_one():
     assert len(world.active_ids()) == len(PLANTS) + 1
 
 
-def test_two_robots_feed_one_map():
-    world = WorldModel(config())
+@pytest.mark.parametrize("whole_innovation", [False, True])
+def test_two_robots_feed_one_map(whole_innovation):
+    # with the whole innovation covariance, b has no chain to what a saw: absolute bound
+    world = WorldModel(config(association={"detection_covariance": whole_innovation}))
     world.process(
         Meta(
             robots={
