@@ -13,7 +13,13 @@ from matplotlib.colors import to_rgba
 from matplotlib.image import imread
 
 from agrislam.config import COLOURS, FieldSchema
-from agrislam.sinks.report import _headline, value_colours, write_attribute_maps, write_report
+from agrislam.sinks.report import (
+    _headline,
+    _marker_size,
+    value_colours,
+    write_attribute_maps,
+    write_report,
+)
 from agrislam.snapshot import MapSnapshot, ObjectMap
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
@@ -158,3 +164,18 @@ def test_report_of_100k_plants_and_10k_steps(snapshot_factory, tmp_path):
     elapsed = time.perf_counter() - start
     assert png_size(path)[0] > 1000
     assert elapsed < 20.0, f"report of 100,000 plants took {elapsed:.1f} s"
+
+
+def test_a_few_trees_over_a_park_are_drawn_larger_than_a_dense_field():
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6, 6))
+    try:
+        park = _marker_size(ax, (-90.0, 190.0, -40.0, 240.0), n=114)  # Victoria Park
+        field = _marker_size(ax, (-1.0, 19.0, -1.0, 10.0), n=400)  # the default field
+        huge = _marker_size(ax, (0.0, 450.0, 0.0, 40.0), n=10_000)
+    finally:
+        plt.close(fig)
+    assert park >= 20.0  # a dot of 5 pt and more: its colour can be read
+    assert 2.0 <= huge < park
+    assert field >= 8.0

@@ -279,11 +279,13 @@ def _field_axes(ax: Axes, extent: tuple[float, float, float, float], title: str)
 
 
 def _marker_size(ax: Axes, extent: tuple[float, float, float, float], n: int) -> float:
-    """Scatter size (pt^2) of a plant ~0.12 m across at the panel's scale, kept visible."""
+    """Scatter size (pt^2) of a plant ~0.12 m across at the panel's scale, kept visible: a
+    few objects over a wide map (trees in a park) are drawn larger than their size."""
     fig_w_in = ax.figure.get_figwidth() * ax.get_position().width
     points_per_m = 72.0 * fig_w_in / max(extent[1] - extent[0], 1e-9)
     size = (0.12 * points_per_m) ** 2
-    return float(np.clip(size, 0.4 if n > 20_000 else 2.0, 60.0))
+    floor = max(0.4 if n > 20_000 else 2.0, min(4000.0 / max(n, 1), 25.0))
+    return float(np.clip(size, floor, 60.0))
 
 
 def _scatter(
