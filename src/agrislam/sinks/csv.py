@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from agrislam.config import FieldSchema
+from agrislam.config import ContinuousAttribute, FieldSchema
 from agrislam.snapshot import MapSnapshot, ObjectMap, Trajectory
 
 FLOAT_FORMAT = "{:.9g}".format  # 9 significant digits: 0.1 mm at 10 km, 1e-9 in probabilities
@@ -36,6 +36,28 @@ def most_probable(belief: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Index of the most probable value per object and its probability, for a (k, n) belief."""
     top = np.argmax(belief, axis=1)
     return top, belief[np.arange(len(belief)), top]
+
+
+def discrete_sureness(p: np.ndarray, n_values: int) -> np.ndarray:
+    """0 for a uniform belief over n values, 1 for a certain one, from the top probability."""
+    return np.clip((p - 1.0 / n_values) / (1.0 - 1.0 / n_values), 0.0, 1.0)
+
+
+def continuous_scale(
+    snapshot: MapSnapshot, name: str, mean: np.ndarray
+) -> tuple[float, float, float]:
+    """(lo, hi, prior variance) of a continuous attribute: the schema's range and initial
+    variance, else the estimates' own range and a uniform prior's variance over it."""
+    spec = snapshot.schema.continuous.get(name) if snapshot.schema is not None else None
+    if isinstance(spec, ContinuousAttribute):
+        return spec.min, spec.max, spec.initial_var
+    lo, hi = float(np.nanmin(mean, initial=0.0)), float(np.nanmax(mean, initial=1.0))
+    return lo, hi, (hi - lo) ** 2 / 12.0 or 1.0
+
+
+def continuous_sureness(var: np.ndarray, prior_var: float) -> np.ndarray:
+    """0 while the std is as wide as the prior's, 1 when it has shrunk to nothing."""
+    return np.clip(1.0 - np.sqrt(var / prior_var), 0.0, 1.0)
 
 
 def discrete_columns(snapshot: MapSnapshot) -> dict[str, tuple[list[str], np.ndarray]]:

@@ -23,8 +23,13 @@ from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 from matplotlib.patches import Patch
 
-from agrislam.config import ContinuousAttribute
-from agrislam.sinks.csv import discrete_columns, most_probable
+from agrislam.sinks.csv import (
+    continuous_scale,
+    continuous_sureness,
+    discrete_columns,
+    discrete_sureness,
+    most_probable,
+)
 from agrislam.snapshot import MapSnapshot, Trajectory
 
 REAL_TIME_BUDGET_MS = 1000.0  # one frame per second (issue 5, "real time")
@@ -38,6 +43,7 @@ MAX_STEP_BINS = 600
 ROW_OVERHANG_M = 0.3  # a row line runs this far past its first and last plant
 INTEREST_CMAP = "YlOrRd"
 HEADLINE_SEPARATOR = "   ·   "
+MIN_OPACITY = 0.15  # a belief that knows nothing is still visible
 # colours that say what the value is, for value names a farmer will recognise
 KNOWN_VALUE_COLOURS = {
     "healthy": "tab:green",
@@ -365,10 +371,8 @@ def _draw_discrete(ax: Axes, snapshot: MapSnapshot, name: str, xy: np.ndarray, s
     top, p = most_probable(belief)
     palette = value_colours(name, values, snapshot)
     n = len(values)
-    # opacity: 0.15 for a uniform belief (knows nothing), 1 for a certain one
-    sureness = np.clip((p - 1.0 / n) / (1.0 - 1.0 / n), 0.0, 1.0)
     rgba = palette[top] if len(top) else np.empty((0, 4))
-    rgba[:, 3] = 0.15 + 0.85 * sureness
+    rgba[:, 3] = opacity(discrete_sureness(p, n))
     _scatter(ax, xy, rgba, size)
     counts = np.bincount(top, minlength=n)
     handles = [
@@ -388,6 +392,11 @@ def _draw_discrete(ax: Axes, snapshot: MapSnapshot, name: str, xy: np.ndarray, s
     )
 
 
+def opacity(sureness: np.ndarray) -> np.ndarray:
+    """Faint (MIN_OPACITY) for a belief that knows nothing, solid for a certain one."""
+    return MIN_OPACITY + (1.0 - MIN_OPACITY) * sureness
+
+
 def value_colours(name: str, values: list[str], snapshot: MapSnapshot) -> np.ndarray:
     """(n, 4) RGBA per value: the colour itself for a colour attribute, green/red for
     healthy/diseased etc., light to dark green for ordered (growing) sizes, else tab10."""
@@ -405,16 +414,10 @@ def _draw_continuous(
     ax: Axes, snapshot: MapSnapshot, name: str, xy: np.ndarray, size: float
 ) -> None:
     mean, var = (np.asarray(a, dtype=float) for a in snapshot.objects.continuous[name])
-    spec = snapshot.schema.continuous.get(name) if snapshot.schema is not None else None
-    if isinstance(spec, ContinuousAttribute):
-        lo, hi, prior_var = spec.min, spec.max, spec.initial_var
-    else:
-        lo, hi = float(np.nanmin(mean, initial=0.0)), float(np.nanmax(mean, initial=1.0))
-        prior_var = (hi - lo) ** 2 / 12.0 or 1.0
+    lo, hi, prior_var = continuous_scale(snapshot, name, mean)
     norm = Normalize(lo, hi)
     rgba = colormaps["viridis"](norm(mean))
-    # opacity: faint while the std is as wide as the prior's, solid when it has shrunk
-    rgba[:, 3] = 0.15 + 0.85 * np.clip(1.0 - np.sqrt(var / prior_var), 0.0, 1.0)
+    rgba[:, 3] = opacity(continuous_sureness(var, prior_var))
     _scatter(ax, xy, rgba, size)
     sm = colormaps["viridis"]
     _colorbar(ax, ScalarMappable(norm=norm, cmap=sm), f"{name} (estimated mean)")

@@ -20,10 +20,15 @@ from pathlib import Path
 import numpy as np
 from matplotlib import colormaps
 
-from agrislam.config import ContinuousAttribute
 from agrislam.perception.camera import quaternion_from_yaw
-from agrislam.sinks.csv import discrete_columns, most_probable
-from agrislam.sinks.report import value_colours
+from agrislam.sinks.csv import (
+    continuous_scale,
+    continuous_sureness,
+    discrete_columns,
+    discrete_sureness,
+    most_probable,
+)
+from agrislam.sinks.report import opacity, value_colours
 from agrislam.snapshot import MapSnapshot, Trajectory
 from agrislam.sources.ros_messages import (
     MARKER_ARRAY,
@@ -34,7 +39,6 @@ from agrislam.sources.ros_messages import (
 )
 
 PLANTS_TOPIC = "/agrislam/plants"
-MIN_OPACITY = 0.15  # a belief that knows nothing is still visible
 ELLIPSE_SIGMAS = 2.0
 MARKER = {"SPHERE": 2, "CYLINDER": 3, "LINE_LIST": 5, "TEXT_VIEW_FACING": 9}
 ACTION = {"ADD": 0, "DELETEALL": 3}
@@ -70,28 +74,20 @@ def plant_style(snapshot: MapSnapshot, attribute: str | None = None) -> PlantSty
     if name in objects.discrete:
         values, belief = discrete_columns(snapshot)[name]
         top, p = most_probable(belief)
-        n = len(values)
-        # 0 for a uniform belief, 1 for a certain one
-        sureness = np.clip((p - 1.0 / n) / (1.0 - 1.0 / n), 0.0, 1.0)
+        sureness = discrete_sureness(p, len(values))
         rgba = value_colours(name, values, snapshot)[top] if k else np.empty((0, 4))
         labels = [f"{name}: {values[j]} {q:.2f}" for j, q in zip(top, p, strict=True)]
     elif name in objects.continuous:
         mean, var = (np.asarray(a, dtype=float) for a in objects.continuous[name])
-        spec = snapshot.schema.continuous.get(name) if snapshot.schema is not None else None
-        if isinstance(spec, ContinuousAttribute):
-            lo, hi, prior_var = spec.min, spec.max, spec.initial_var
-        else:
-            lo, hi = float(np.min(mean, initial=0.0)), float(np.max(mean, initial=1.0))
-            prior_var = (hi - lo) ** 2 / 12.0 or 1.0
+        lo, hi, prior_var = continuous_scale(snapshot, name, mean)
         rgba = colormaps["viridis"](np.clip((mean - lo) / ((hi - lo) or 1.0), 0.0, 1.0))
-        # 0 while the std is as wide as the prior's, 1 when it has shrunk to nothing
-        sureness = np.clip(1.0 - np.sqrt(var / prior_var), 0.0, 1.0)
+        sureness = continuous_sureness(var, prior_var)
         labels = [f"{name}: {m:.3g} ± {np.sqrt(v):.2g}" for m, v in zip(mean, var, strict=True)]
     else:
         known = [*objects.discrete, *objects.continuous]
         raise ValueError(f"attribute {name!r} is not in the map (it has {known})")
     rgba = np.array(rgba, dtype=float).reshape(k, 4)
-    rgba[:, 3] = MIN_OPACITY + (1.0 - MIN_OPACITY) * sureness
+    rgba[:, 3] = opacity(sureness)
     return PlantStyle(name, rgba, sureness, labels)
 
 
