@@ -109,6 +109,7 @@ def drive(
     for name, (pose, sigma) in survey.starts.items():
         backend.add_robot(name, pose, sigma, t=0.0)
     ids: dict[str, int] = {}
+    frames_seen = np.zeros(len({d[0] for s in survey.steps for d in s.detections}), np.int64)
     latency, snapshots = [], {}
     start = time.perf_counter()
     for n, step in enumerate(survey.steps):
@@ -124,8 +125,10 @@ def drive(
             backend.add_observation(step.robot, ids[truth_id], RelativePosition(xy, cov))
             touched.append(ids[truth_id])
         backend.update()
+        touched_ids = np.unique(np.array(touched, np.int64))
+        frames_seen[touched_ids] += 1
         if rows is not None:
-            rows.after_step(backend, np.unique(np.array(touched, np.int64)), len(touched))
+            rows.after_step(backend, touched_ids, len(touched), frames_seen)
         latency.append(time.perf_counter() - t0)
         if snapshot_at(n + 1):
             snapshots[n + 1] = positions(backend, ids)

@@ -112,7 +112,7 @@ def victoria_park() -> None:
     example = load_mapping(ROOT / "examples" / "victoria_park.yaml")
     paper = {
         **example,
-        "association": {**example["association"], "detection_covariance": False},
+        "association": {**example["association"], "innovation_gate": False},
         "sensor": {**example["sensor"], "odom_sigma_scale": [1.0, 1.0, 1.0]},
         "slam": {},
     }

@@ -12,6 +12,7 @@ from agrislam.config import (
     COLOURS,
     SCHEMA_PRESETS,
     SIZES,
+    AgrislamConfig,
     ContinuousAttribute,
     DiscreteAttribute,
     FieldSchema,
@@ -236,3 +237,9 @@ def test_unknown_file_format_and_non_mapping_are_refused(tmp_path: Path):
 def test_empty_schema_means_no_attributes():
     schema = FieldSchema.model_validate({})
     assert schema.attributes == {} and schema.discrete == {} and schema.continuous == {}
+
+
+def test_a_renamed_association_key_is_still_read_with_a_warning():
+    with pytest.warns(FutureWarning, match="detection_covariance is now .*innovation_gate"):
+        cfg = AgrislamConfig.model_validate({"association": {"detection_covariance": True}})
+    assert cfg.association.innovation_gate is True

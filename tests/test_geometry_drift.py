@@ -1,10 +1,12 @@
-"""The dead-reckoning drift since an object was last seen (geometry/drift.py)."""
+"""The dead-reckoning drift since an object was last seen (geometry/drift.py) and the
+odometry chain that accumulates it (geometry/odometry.py)."""
 
 import numpy as np
 import pytest
 
 from agrislam.geometry import se2
-from agrislam.geometry.drift import OdometryDrift, adjoint
+from agrislam.geometry.drift import adjoint, since_seen
+from agrislam.geometry.odometry import OdometryChain
 
 Q = np.diag([0.02**2, 0.01**2, 0.01**2])  # per step: x, y, heading
 STEP = np.array([0.5, 0.0, 0.04])  # a gentle left curve
@@ -20,31 +22,32 @@ def test_adjoint_moves_a_perturbation_across_the_pose():
     assert left == pytest.approx(local, abs=1e-6)
 
 
+def chain_after(chain: OdometryChain, steps: int) -> OdometryChain:
+    """`steps` motions of STEP, each its own pose node (its drift taken at once)."""
+    for _ in range(steps):
+        chain.move(0.0, STEP, Q)
+        chain.take_pending()
+    return chain
+
+
 def test_the_drift_since_an_object_was_seen_matches_monte_carlo():
     rng = np.random.default_rng(4)
     start, steps_before, steps_after = np.array([2.0, 1.0, 0.3]), 30, 40
-    drift = OdometryDrift()
-    drift.start("r", start)
-    pose = start.copy()
-    for _ in range(steps_before):
-        pose = se2.compose(pose, STEP)
-        drift.advance("r", pose, Q)
-    drift.seen("r", np.array([7]))
-    seen_at = pose.copy()
-    for _ in range(steps_after):
-        pose = se2.compose(pose, STEP)
-        drift.advance("r", pose, Q)
+    chain = OdometryChain()
+    chain.start(start, 0.0)
+    chain_after(chain, steps_before)
+    seen_at, seen_drift = chain.pose.copy(), chain.drift.copy()
+    chain_after(chain, steps_after)
     detection = np.array([[6.0, 2.0]])  # in the robot's frame now
-    cov, known = drift.since_seen("r", np.array([7]), detection, map_heading=0.0)
-    assert known.tolist() == [True]
+    cov = since_seen(chain.pose, chain.drift, seen_drift[None], np.array([True]), detection, 0.0)
 
     # sample the chain from where the object was seen to now; the map frame is the
     # dead-reckoning frame turned by -heading now (map_heading = 0)
     samples = []
     noise = rng.multivariate_normal(np.zeros(3), Q, size=(3000, steps_after))
-    for chain in noise:
+    for eta_chain in noise:
         p = seen_at.copy()
-        for eta in chain:
+        for eta in eta_chain:
             p = se2.compose(p, se2.compose(STEP, eta))
         samples.append(se2.compose(p, np.r_[detection[0], 0.0])[:2])
     nominal = seen_at.copy()
@@ -55,30 +58,31 @@ def test_the_drift_since_an_object_was_seen_matches_monte_carlo():
     assert cov[0, 0] == pytest.approx(expected, rel=0.12, abs=2e-3)
 
 
-def test_objects_of_another_robot_or_forgotten_have_no_chain():
-    drift = OdometryDrift()
-    drift.start("a", np.zeros(3))
-    drift.start("b", np.zeros(3))
-    drift.seen("a", np.array([1, 2]))
-    drift.seen("b", np.array([3]))
-    drift.forget(np.array([2]))
-    drift.advance("a", STEP, Q)  # one step from the origin
-    cov, known = drift.since_seen("a", np.array([1, 2, 3]), np.array([[1.0, 0.0]]), 0.0)
-    assert known.tolist() == [True, False, False]
-    assert cov.shape == (1, 3, 2, 2)
-    assert np.linalg.eigvalsh(cov[0, 0]).min() > 0 and np.all(cov[0, 1:] == 0)
+def test_objects_without_a_chain_to_the_robot_add_no_drift():
+    chain = chain_after(OdometryChain(), 1)
+    seen = np.stack([np.zeros((3, 3)), np.eye(3)])
+    cov = since_seen(chain.pose, chain.drift, seen, np.array([True, False]), np.ones((1, 2)), 0.0)
+    assert cov.shape == (1, 2, 2, 2)
+    assert np.linalg.eigvalsh(cov[0, 0]).min() > 0 and np.all(cov[0, 1] == 0)
 
 
-def test_a_merged_object_was_last_seen_when_either_was():
-    drift = OdometryDrift()
-    drift.start("r", np.zeros(3))
-    pose = np.zeros(3)
-    drift.seen("r", np.array([1]))  # seen at the start
-    for _ in range(20):
-        pose = se2.compose(pose, STEP)
-        drift.advance("r", pose, Q)
-    drift.seen("r", np.array([2]))  # its duplicate, seen just now
-    drift.merge(keep=1, drop=2)
-    cov, known = drift.since_seen("r", np.array([1, 2]), np.array([[3.0, 0.0]]), pose[2])
-    assert known.tolist() == [True, False]
-    assert np.allclose(cov[0, 0], 0.0)  # as recent as the duplicate
+def test_the_chain_composes_increments_between_pose_nodes():
+    chain = OdometryChain()
+    chain.start(np.zeros(3), 0.0)
+    chain.move(1.0, STEP, Q)
+    chain.move(2.0, STEP, Q)
+    delta, cov = chain.take_pending()
+    expected, expected_cov = se2.compose_increments(STEP, Q, STEP, Q)
+    np.testing.assert_allclose(delta, expected)
+    np.testing.assert_allclose(cov, expected_cov)
+    assert chain.take_pending() is None  # nothing moved since
+    times, poses = chain.track()
+    assert times.tolist() == [0.0, 1.0, 2.0]
+    np.testing.assert_allclose(poses[-1], se2.compose(STEP, STEP))
+
+
+def test_a_pose_record_starts_the_odometry_frame():
+    chain = OdometryChain()
+    assert chain.increment(np.array([5.0, 1.0, 0.5]), None) is None
+    delta = chain.increment(se2.compose(np.array([5.0, 1.0, 0.5]), STEP), None)
+    np.testing.assert_allclose(delta, STEP)

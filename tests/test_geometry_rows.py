@@ -85,7 +85,7 @@ def test_tracker_adds_row_nodes_constraints_and_spacing():
     g = backend_with_objects(points)
     tracker = RowTracker(RowsConfig(n_det_est=12, min_detections=1))
     assert tracker.lines() is None
-    tracker.after_step(g, np.arange(len(points)), len(points))
+    tracker.after_step(g, np.arange(len(points)), len(points), np.ones(len(points), int))
     lines = tracker.lines()
     assert math.degrees(lines.angle) == pytest.approx(10.0, abs=0.01)
     np.testing.assert_allclose(lines.offsets, 0.3 + np.arange(4), atol=1e-3)
@@ -165,7 +165,7 @@ def test_turning_a_row_replaces_its_constraints():
     points = rows_of_points(n_rows=2, per_row=4, noise=0.0)
     g = backend_with_objects(points)
     tracker = RowTracker(RowsConfig(n_det_est=2, min_detections=1))
-    tracker.after_step(g, np.arange(len(points)), len(points))
+    tracker.after_step(g, np.arange(len(points)), len(points), np.ones(len(points), int))
     before = sorted(f.value[0] for f in g.graph.factors.values() if f.kind == ROW_MEMBER)
     assert before == pytest.approx([ANGLE] * 8, abs=1e-3)
     g.set_row_angle(0, 0.0)

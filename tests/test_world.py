@@ -85,7 +85,7 @@ def test_a_detection_far_from_every_object_starts_a_new_one():
 @pytest.mark.parametrize("whole_innovation", [False, True])
 def test_two_robots_feed_one_map(whole_innovation):
     # with the whole innovation covariance, b has no chain to what a saw: absolute bound
-    world = WorldModel(config(association={"detection_covariance": whole_innovation}))
+    world = WorldModel(config(association={"innovation_gate": whole_innovation}))
     world.process(
         Meta(
             robots={
@@ -169,11 +169,11 @@ def test_near_neighbours_stay_apart_while_the_robot_is_lost_in_the_map(chain):
     # covariance must come from the odometry chain, not from the absolute marginals
     plants = np.column_stack([np.arange(1.0, 7.0), np.zeros(6)])
     world = WorldModel(
-        config(association={"detection_covariance": True, "gate_chi2": 5.99, "gate_sigma_max": 3})
+        config(association={"innovation_gate": True, "gate_chi2": 5.99, "gate_sigma_max": 3})
     )
     if not chain:  # as if every plant had been last seen by another robot
-        since_seen = world.drift.since_seen
-        world.drift.since_seen = lambda *a: (since_seen(*a)[0], np.zeros(len(a[1]), bool))
+        last_seen = world.objects.last_seen
+        world.objects.last_seen = lambda ids, robot: last_seen(ids, robot + 1)
     world.process(Meta(robots={"r1": RobotStart(np.zeros(3), np.array([5.0, 5.0, 0.05]))}))
     poses = straight(0.0, 6.0, 0.0, 25)
 
@@ -207,3 +207,27 @@ def test_odometry_sigmas_are_widened_by_the_configured_factors():
 def test_a_sigma_scale_must_be_positive():
     with pytest.raises(ValueError, match="odom_sigma_scale"):
         config(sensor={"odom_sigma_scale": [1.0, 0.0, 2.0]})
+
+
+def test_one_config_object_serves_two_surveys_and_is_never_written():
+    cfg = config()
+
+    def survey(min_plant_distance: float):
+        world = WorldModel(cfg)
+        start = {"r1": RobotStart(np.array([0.0, 0.5, 0.0]), np.full(3, 1e-3))}
+        world.process(Meta(robots=start, field=FieldPrior(1.0, min_plant_distance)))
+        drive(world, "r1", straight(0.0, 0.8, 0.5, 5))
+        return world
+
+    before = cfg.model_dump()
+    first, second = survey(0.4), survey(0.4)
+    assert cfg.model_dump() == before  # the field prior's d_inter stays on the world
+    assert first.association.d_inter == second.association.d_inter == 0.2
+    a, b = first.snapshot(), second.snapshot()
+    np.testing.assert_array_equal(a.objects.ids, b.objects.ids)
+    np.testing.assert_array_equal(a.objects.xy, b.objects.xy)
+    np.testing.assert_array_equal(a.objects.cov, b.objects.cov)
+    for name in a.objects.discrete:
+        np.testing.assert_array_equal(a.objects.discrete[name], b.objects.discrete[name])
+    # a third survey with another field prior gets its own
+    assert survey(0.6).association.d_inter == pytest.approx(0.3)

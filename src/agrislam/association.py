@@ -121,7 +121,7 @@ def innovation_covariance(
     drift_known: np.ndarray | None = None,
 ) -> np.ndarray:
     """(m, k, 2, 2) covariance of e_mn, the tighter of two upper bounds (a deviation from
-    sec. 2.4's K_n, see `association.detection_covariance`):
+    sec. 2.4's K_n, see `association.innovation_gate`):
 
     - absolute: K_n + R_m + the robot pose marginal at the detection, which ignores that
       the robot and an object it saw lately are uncertain together;

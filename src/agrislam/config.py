@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 import math
 import tomllib
+import warnings
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
@@ -17,6 +18,8 @@ import yaml
 from pydantic import BaseModel, ConfigDict, Field, PositiveFloat, model_validator
 
 SECONDS_PER_DAY = 86_400.0
+# association keys renamed since 0.1: old -> new (read with a FutureWarning)
+RENAMED_ASSOCIATION_KEYS = {"detection_covariance": "innovation_gate"}
 
 
 class _Strict(BaseModel):
@@ -246,6 +249,23 @@ class SensorDefaults(_Strict):
 class AssociationConfig(_Strict):
     """Data association (sec. 2.4)."""
 
+    @model_validator(mode="before")
+    @classmethod
+    def _renamed_keys(cls, data: Any) -> Any:
+        """Configs written before a key was renamed keep working, with a warning."""
+        if not isinstance(data, dict):
+            return data
+        for old, new in RENAMED_ASSOCIATION_KEYS.items():
+            if old in data:
+                warnings.warn(
+                    f"association.{old} is now association.{new}; please rename it",
+                    FutureWarning,
+                    stacklevel=2,
+                )
+                data = {**data, new: data[old]}
+                del data[old]
+        return data
+
     w_sem: float = Field(0.3, ge=0.0, le=1.0, description="semantic weight w_sem")
     d_inter: float = Field(
         0.2,
@@ -255,11 +275,12 @@ class AssociationConfig(_Strict):
         "between neighbours, unless given here",
     )
     use_semantics: bool = True
-    detection_covariance: bool = Field(
+    innovation_gate: bool = Field(
         False,
         description="compare e against its whole covariance instead of the paper's K_n "
         "alone: the tighter of K_n + R_m + the robot pose marginal (DESIGN step 3) and "
-        "R_m + the robot's drift since it last saw the object (association.py)",
+        "R_m + the robot's drift since it last saw the object (association.py); "
+        "formerly `detection_covariance`",
     )
     gate_chi2: float = Field(
         1.0,

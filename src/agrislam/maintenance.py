@@ -2,7 +2,7 @@
 only a few times whose interest heuristic stays high.
 
 Both look only around what changed: merging checks the objects touched this step,
-pruning the few young objects whose grace period has just run out.
+pruning the young objects whose grace period has just run out.
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ import numpy as np
 
 from agrislam.association import SpatialIndex
 from agrislam.config import MaintenanceConfig
-from agrislam.semantics.beliefs import BeliefTable
+from agrislam.objects import ObjectTable
 
 
 @dataclass(slots=True)
@@ -52,37 +52,25 @@ def merge_pairs(
     return pairs
 
 
-class Pruner:
-    """Remembers objects seen at most `prune_max_meas` times; once unseen for the grace
-    period, an object whose interest heuristic is still high is pruned."""
-
-    def __init__(self, config: MaintenanceConfig) -> None:
-        self.config = config
-        self._young: dict[int, None] = {}  # insertion-ordered set
-
-    def watch(self, ids: np.ndarray) -> None:
-        for i in ids.tolist():
-            self._young[i] = None
-
-    def forget(self, ids: list[int]) -> None:
-        for i in ids:
-            self._young.pop(i, None)
-
-    def due(self, beliefs: BeliefTable, t: float, grace: float | None = None) -> list[int]:
-        """Objects to prune now; objects that grew out of youth are dropped from watch.
-        `grace` overrides the configured grace period (0 at the end of a survey)."""
-        grace = self.config.prune_grace_s if grace is None else grace
-        if not self._young:
-            return []
-        ids = np.fromiter(self._young, dtype=int, count=len(self._young))
-        n_meas = beliefs.n_meas[ids]
-        grown = ids[n_meas > self.config.prune_max_meas]
-        expired = ids[
-            (n_meas <= self.config.prune_max_meas) & (beliefs.last_update[ids] <= t - grace)
-        ]
-        self.forget(grown.tolist())
-        if len(expired) == 0:
-            return []
-        self.forget(expired.tolist())
-        h = beliefs.interest(expired, t)
-        return expired[h >= self.config.prune_min_interest].tolist()
+def prune_due(
+    objects: ObjectTable, t: float, config: MaintenanceConfig, grace: float | None = None
+) -> list[int]:
+    """Objects to prune now, among those the pruner watches (`objects.young`): seen at most
+    `prune_max_meas` times, unseen for the grace period, and with an interest heuristic
+    still at or above `prune_min_interest`. Objects that grew out of youth, and those
+    judged now, are no longer watched. `grace` overrides the configured grace period (0
+    at the end of a survey)."""
+    grace = config.prune_grace_s if grace is None else grace
+    young = objects.young
+    ids = np.flatnonzero(young)
+    if len(ids) == 0:
+        return []
+    n_meas = objects.n_meas[ids]
+    grown = ids[n_meas > config.prune_max_meas]
+    expired = ids[(n_meas <= config.prune_max_meas) & (objects.last_update[ids] <= t - grace)]
+    young[grown] = False
+    if len(expired) == 0:
+        return []
+    young[expired] = False
+    h = objects.beliefs.interest(expired, t)
+    return expired[h >= config.prune_min_interest].tolist()

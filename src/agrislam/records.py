@@ -7,6 +7,8 @@ them; the core consumes them and never knows which source it was.
 
 from __future__ import annotations
 
+import dataclasses
+import math
 from dataclasses import dataclass, field
 from typing import TypeAlias
 
@@ -93,12 +95,32 @@ class Detection:
     label_p: float | None = None
     truth_id: str | None = None  # evaluation only: the mapper never reads it
 
+    def within_schema(self, schema: FieldSchema | None) -> tuple[Detection, list[str]]:
+        """This detection without the measurements the schema cannot take (unknown
+        attribute, wrong kind, value not in it, p outside [0, 1], non-finite or negative
+        variance), and the names of those dropped; the geometry is kept."""
+        bad = [n for n, m in self.attributes.items() if not fits_schema(schema, n, m)]
+        if not bad:
+            return self, bad
+        kept = {n: m for n, m in self.attributes.items() if n not in bad}
+        return dataclasses.replace(self, attributes=kept), bad
+
     def position(self) -> np.ndarray:
         """The detection as x, y in the robot frame, whichever geometry it was given in."""
         if self.xy is not None:
             return self.xy
         assert self.range is not None and self.bearing is not None
         return self.range * np.array([np.cos(self.bearing), np.sin(self.bearing)])
+
+
+def fits_schema(schema: FieldSchema | None, name: str, m: Measurement) -> bool:
+    """Whether measurement `m` of attribute `name` is one the schema can take."""
+    spec = schema.attributes.get(name) if schema is not None else None
+    if spec is None or (spec.kind == "discrete") != isinstance(m, DiscreteMeasurement):
+        return False
+    if isinstance(m, DiscreteMeasurement):
+        return m.value in spec.values and 0.0 <= m.p <= 1.0  # type: ignore[union-attr]
+    return math.isfinite(m.value) and math.isfinite(m.var) and m.var >= 0.0
 
 
 @dataclass(frozen=True, slots=True)

@@ -1,19 +1,19 @@
 """The world model: one step of the pipeline of DESIGN.md, the only orchestrator.
 
 Records go in (from any source); the map comes out as a `MapSnapshot`. `step` takes a
-frame of detections of one robot and runs the pipeline: predict, add pose, place
-detections, associate, update beliefs, update geometry, rows, maintain, publish.
-Odometry between frames is kept and composed into the frame's pose.
+frame of detections of one robot and runs the pipeline: check the measurements, add the
+pose, place the detections, associate, update beliefs (each predicted to t first),
+optimise, follow in the spatial index, learn the depth bias, rows, maintain. Odometry
+between frames is kept in the robot's chain and composed into the frame's pose.
 """
 
 from __future__ import annotations
 
-import dataclasses
 import time
 from collections import defaultdict
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from contextlib import contextmanager
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -26,49 +26,33 @@ from agrislam.association import (
     innovation_covariance,
     max_association_distance,
 )
-from agrislam.config import AgrislamConfig, FieldSchema
+from agrislam.config import AgrislamConfig, AssociationConfig, FieldSchema
 from agrislam.geometry import se2
-from agrislam.geometry.backend import (
-    RangeBearing,
-    RelativePosition,
-    detection_covariance,
-    make_backend,
-)
+from agrislam.geometry.backend import make_backend
 from agrislam.geometry.depth_bias import DepthBiasEstimator
-from agrislam.geometry.drift import OdometryDrift
+from agrislam.geometry.drift import since_seen
+from agrislam.geometry.noise import SensorModel
+from agrislam.geometry.odometry import OdometryChain
 from agrislam.geometry.rows import RowTracker
-from agrislam.maintenance import MaintenanceResult, Pruner, merge_pairs
-from agrislam.records import (
-    Detection,
-    Detections,
-    DiscreteMeasurement,
-    FieldPrior,
-    Measurement,
-    Meta,
-    Odometry,
-    Record,
-)
+from agrislam.maintenance import MaintenanceResult, merge_pairs, prune_due
+from agrislam.objects import ObjectTable
+from agrislam.records import Detection, Detections, FieldPrior, Meta, Odometry, Record
 from agrislam.semantics.beliefs import BeliefTable
 from agrislam.semantics.heuristic import interest_surface
-from agrislam.snapshot import (
-    STATUS_ACTIVE,
-    STATUS_MERGED,
-    STATUS_PRUNED,
-    MapSnapshot,
-    ObjectMap,
-    Trajectory,
-)
+from agrislam.snapshot import STATUS_MERGED, STATUS_PRUNED, MapSnapshot, ObjectMap, Trajectory
 
+# what each timed stage of a step does (DESIGN.md "The pipeline, one step")
 STAGES = (
-    "predict",
-    "add_pose",
-    "place",
-    "associate",
-    "beliefs",
-    "geometry",
-    "rows",
-    "maintain",
-    "publish",
+    "check",  # the frame's measurements against the schema (beliefs are predicted lazily)
+    "add_pose",  # the robot's pose node and odometry factor
+    "place",  # detections into the map frame, with their covariances
+    "associate",  # gate, association matrix, GNN; new objects
+    "beliefs",  # Bayes / Kalman updates, each belief brought to t first
+    "optimise",  # measurement factors and the back end's incremental solve
+    "index",  # the spatial index follows the objects the solve moved
+    "depth_bias",  # the depth bias learned from this frame's residuals
+    "rows",  # row fits and row constraints
+    "maintain",  # merge and prune
 )
 
 
@@ -83,20 +67,6 @@ class StepReport:
     new_ids: np.ndarray
     maintenance: MaintenanceResult
     seconds: dict[str, float]
-
-
-@dataclass(slots=True)
-class _Robot:
-    """One robot's chain: its odometry since the last frame, and its dead reckoning."""
-
-    start_pose: np.ndarray | None = None  # map-frame prior from the survey's meta
-    start_sigma: np.ndarray | None = None
-    started: bool = False  # added to the back end
-    pending: tuple[np.ndarray, np.ndarray] | None = None  # composed delta, cov
-    odom_pose: np.ndarray | None = None  # last absolute odometry-frame pose, if given
-    dead_reckoning: np.ndarray = field(default_factory=lambda: np.zeros(3))
-    dr_t: list[float] = field(default_factory=list)
-    dr_poses: list[np.ndarray] = field(default_factory=list)
 
 
 class _Timer:
@@ -118,26 +88,33 @@ class _Timer:
 
 
 class WorldModel:
-    """A probabilistic semantic map of a field, built from records of any source."""
+    """A probabilistic semantic map of a field, built from records of any source.
+
+    The configuration is read, never written: what a survey's meta adds (its schema, its
+    field prior's plant spacing) is kept on the world, so one config object serves any
+    number of surveys."""
 
     def __init__(self, config: AgrislamConfig | None = None) -> None:
         self.config = config or AgrislamConfig()
         self.schema: FieldSchema | None = self.config.field_schema()
-        self.beliefs = BeliefTable(self.schema, self.config.semantics)
+        self.association: AssociationConfig = self.config.association
+        self.sensor = SensorModel(self.config.sensor)
+        self.objects = ObjectTable(BeliefTable(self.schema, self.config.semantics))
         self.backend = make_backend(self.config.slam, self.config.rows)
         self.rows = RowTracker(self.config.rows) if self.config.rows.enabled else None
-        self.index = SpatialIndex(self.config.association.index_margin)
+        self.index = SpatialIndex(self.association.index_margin)
+        self.objects.on_retire(self.index.forget)
         self._steps_since_rebuild = 0
-        self.pruner = Pruner(self.config.maintenance)
         self.depth_bias = DepthBiasEstimator(self.config.sensor.depth_bias)
-        self.drift = OdometryDrift()
         self.anchor = None
         self.issues: dict[str, int] = defaultdict(int)
-        self._robots: dict[str, _Robot] = {}
-        self._status = np.zeros(1024, dtype=np.int8)
-        self._merged_into = np.full(1024, -1, dtype=np.int64)
+        self.robots: dict[str, OdometryChain] = {}
         self._timer = _Timer()
-        self._listeners: list[Callable[[StepReport], None]] = []
+
+    @property
+    def beliefs(self) -> BeliefTable:
+        """The objects' semantic beliefs (the object table's semantic columns)."""
+        return self.objects.beliefs
 
     # ------------------------------------------------------------------ records in
 
@@ -153,110 +130,103 @@ class WorldModel:
 
     def configure(self, meta: Meta) -> None:
         """Take the schema, start poses, anchor and field knowledge of a survey."""
-        if self.schema is None and meta.schema is not None and len(self.beliefs) == 0:
+        if self.schema is None and meta.schema is not None and len(self.objects) == 0:
             self.schema = meta.schema
-            self.beliefs = BeliefTable(self.schema, self.config.semantics)
+            self.objects = ObjectTable(BeliefTable(self.schema, self.config.semantics))
+            self.objects.on_retire(self.index.forget)
         self.anchor = meta.anchor or self.anchor
         if meta.field is not None:
             self._use_field_prior(meta.field)
         for name, start in meta.robots.items():
-            robot = self._robots.setdefault(name, _Robot())
-            if not robot.started:
-                robot.start_pose = np.asarray(start.pose, dtype=float)
-                robot.start_sigma = np.asarray(start.sigma, dtype=float)
+            chain = self.robots.setdefault(name, OdometryChain())
+            if not chain.started:
+                chain.start_pose = np.asarray(start.pose, dtype=float)
+                chain.start_sigma = np.asarray(start.sigma, dtype=float)
 
     def _use_field_prior(self, prior: FieldPrior) -> None:
         """What the survey knows of its field, unless the run's config says otherwise."""
-        association = self.config.association
-        if prior.min_plant_distance and "d_inter" not in association.model_fields_set:
+        configured = self.config.association
+        if prior.min_plant_distance and "d_inter" not in configured.model_fields_set:
             # a detection nearer than half the plant spacing is this plant, not its neighbour
-            association.d_inter = 0.5 * prior.min_plant_distance
+            d_inter = 0.5 * prior.min_plant_distance
+            self.association = configured.model_copy(update={"d_inter": d_inter})
         if self.rows is not None:
             self.rows.use_prior(prior)
 
     def add_odometry(self, odom: Odometry) -> None:
         """Compose the motion into the robot's pending increment (DESIGN step 2)."""
-        robot = self._robot(odom.robot, odom.t)
-        delta = self._increment(robot, odom)
-        if delta is None:
-            return
-        sensor = self.config.sensor
-        cov = odom.cov if odom.cov is not None else np.diag(sensor.odom_cov_diag)
-        cov = cov * np.outer(sensor.odom_sigma_scale, sensor.odom_sigma_scale)
-        if robot.pending is None:
-            robot.pending = (delta, cov)
-        else:
-            robot.pending = se2.compose_increments(*robot.pending, delta, cov)
-        robot.dead_reckoning = se2.compose(robot.dead_reckoning, delta)
-        robot.dr_t.append(odom.t)
-        robot.dr_poses.append(robot.dead_reckoning)
-
-    def subscribe(self, listener: Callable[[StepReport], None]) -> None:
-        """Call `listener` with every step's report (the publish stage)."""
-        self._listeners.append(listener)
+        chain = self._chain(odom.robot, odom.t)
+        delta = chain.increment(odom.pose, odom.delta)
+        if delta is not None:
+            chain.move(odom.t, delta, self.sensor.odometry_covariance(odom.cov))
 
     # ---------------------------------------------------------------- the pipeline
 
     def step(self, frame: Detections) -> StepReport:
         """One frame of one robot: the pipeline of DESIGN.md, top to bottom."""
-        t, timer = frame.t, self._timer
-        with timer("predict"):
-            detections = self._valid_detections(frame)  # beliefs are predicted lazily
+        t, robot, timer = frame.t, frame.robot, self._timer
+        with timer("check"):
+            detections = self._within_schema(frame)
         with timer("add_pose"):
-            self._add_pose(frame.robot, t)
+            self._add_pose(robot, t)
         with timer("place"):
-            placed = self._place(frame.robot, detections)
+            placed = self._place(robot, detections)
         with timer("associate"):
-            object_ids = self._associate(frame.robot, placed, t)
+            object_ids = self._associate(robot, placed, t)
             new_ids = self._create_objects(object_ids, placed, t)
-            self.drift.seen(frame.robot, object_ids)
+            seen = np.unique(object_ids)
+            self.objects.seen(seen, self._robot_index(robot), self.robots[robot].drift)
         with timer("beliefs"):
             self.beliefs.update(object_ids, [d.attributes for d in detections], t)
-        with timer("geometry"):
-            for i, (det, obj) in enumerate(zip(detections, object_ids.tolist(), strict=True)):
-                measurement = self._measurement(det, placed.robot_xy[i], placed.robot_cov[i])
-                self.backend.add_observation(frame.robot, obj, measurement)
+        with timer("optimise"):
+            for det, obj, xy, cov in zip(
+                detections, object_ids.tolist(), placed.robot_xy, placed.robot_cov, strict=True
+            ):
+                self.backend.add_observation(robot, obj, self.sensor.measurement(det, xy, cov))
             self.backend.update()
-            self._refresh_index(np.unique(object_ids))
-            self._calibrate_depth(frame.robot, placed, object_ids)
+        with timer("index"):
+            self._refresh_index(seen)
+        with timer("depth_bias"):
+            self._calibrate_depth(robot, placed, object_ids)
         with timer("rows"):
             if self.rows is not None:
-                self.rows.after_step(self.backend, np.unique(object_ids), len(detections))
+                self.rows.after_step(self.backend, seen, len(detections), self.objects.n_frames)
         with timer("maintain"):
-            result = self._maintain(np.unique(object_ids), t)
-        with timer("publish"):
-            report = StepReport(t, frame.robot, self.resolve(object_ids), new_ids, result, {})
-            for listener in self._listeners:
-                listener(report)
+            result = self._maintain(seen, t)
+        report = StepReport(t, robot, self.resolve(object_ids), new_ids, result, {})
         report.seconds = timer.close_step()
         return report
 
     # ----------------------------------------------------------------- the stages
 
-    def _valid_detections(self, frame: Detections) -> list[Detection]:
+    def _within_schema(self, frame: Detections) -> list[Detection]:
         """Detections with their measurements checked against the schema; a bad attribute
         is dropped (and counted), the detection's geometry kept."""
-        return [self._checked(det) for det in frame.objects]
+        checked = []
+        for det in frame.objects:
+            det, dropped = det.within_schema(self.schema)
+            for name in dropped:
+                self.issues[f"measurement of {name!r} not in the schema: dropped"] += 1
+            checked.append(det)
+        return checked
 
-    def _add_pose(self, robot_name: str, t: float) -> None:
-        robot = self._robot(robot_name, t)
-        if robot.pending is not None:
-            delta, cov = robot.pending
-            self.backend.add_odometry(robot_name, t, delta, cov)
-            self.drift.advance(robot_name, robot.dead_reckoning, cov)
-            robot.pending = None
+    def _add_pose(self, robot: str, t: float) -> None:
+        pending = self._chain(robot, t).take_pending()
+        if pending is not None:
+            self.backend.add_odometry(robot, t, *pending)
 
     def _place(self, robot: str, detections: list[Detection]) -> PlacedDetections:
         """Detections into the map frame with their covariances (DESIGN step 3), after
         the depth-bias correction."""
         if not detections:
-            return PlacedDetections(np.empty((0, 2)), np.empty((0, 2, 2)), [])
+            nothing, no_cov = np.empty((0, 2)), np.empty((0, 2, 2))
+            return PlacedDetections(nothing, no_cov, [], nothing, no_cov)
         xy = self.depth_bias.correct(np.stack([d.position() for d in detections]))
-        cov = np.stack([self._robot_frame_cov(d) for d in detections])
+        cov = np.stack([self.sensor.detection_covariance(d) for d in detections])
         pose = self.backend.current_pose(robot)
         map_xy, map_cov = se2.to_map_frame(pose, xy, cov)
         pose_cov = None
-        if self.config.association.detection_covariance:  # the robot pose uncertainty
+        if self.association.innovation_gate:  # the robot pose uncertainty
             pose_cov = se2.pose_uncertainty_at(
                 pose, self.backend.current_pose_covariance(robot), xy
             )
@@ -265,7 +235,7 @@ class WorldModel:
 
     def _associate(self, robot: str, placed: PlacedDetections, t: float) -> np.ndarray:
         """GNN over the association matrix of gated candidates (sec. 2.4); -1 = new."""
-        cfg = self.config.association
+        cfg = self.association
         if len(placed) == 0:
             return np.empty(0, dtype=int)
         n_measured = max(len(m) for m in placed.measurements) if cfg.use_semantics else 0
@@ -276,10 +246,10 @@ class WorldModel:
             return np.full(len(placed), -1)
         object_cov = self.backend.object_covariances(candidates)
         innovation = None
-        if cfg.detection_covariance:
-            heading = self.backend.current_pose(robot)[2]
-            drift = self.drift.since_seen(robot, candidates, placed.robot_xy, heading)
-            innovation = innovation_covariance(placed, object_cov, *drift)
+        if cfg.innovation_gate:
+            innovation = innovation_covariance(
+                placed, object_cov, *self._drift_since_seen(robot, candidates, placed)
+            )
         matrix = association_matrix(
             placed,
             candidates,
@@ -293,18 +263,27 @@ class WorldModel:
         chosen = assign(matrix)
         return np.where(chosen >= 0, candidates[np.maximum(chosen, 0)], -1)
 
+    def _drift_since_seen(
+        self, robot: str, candidates: np.ndarray, placed: PlacedDetections
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """(m, k, 2, 2) what the robot's drift since it last saw each candidate adds to
+        each detection, and (k,) whether it has such a chain (geometry/drift.py)."""
+        known, seen_drift = self.objects.last_seen(candidates, self._robot_index(robot))
+        chain = self.robots[robot]
+        heading = self.backend.current_pose(robot)[2]
+        drift = since_seen(chain.pose, chain.drift, seen_drift, known, placed.robot_xy, heading)
+        return drift, known
+
     def _create_objects(
         self, object_ids: np.ndarray, placed: PlacedDetections, t: float
     ) -> np.ndarray:
         """Unassigned detections become new objects (in place in `object_ids`)."""
         unassigned = np.flatnonzero(object_ids < 0)
-        new_ids = self.beliefs.add(len(unassigned), t)
-        self._grow_status(len(self.beliefs))
+        new_ids = self.objects.add(len(unassigned), t)
         for i, obj in zip(unassigned.tolist(), new_ids.tolist(), strict=True):
             self.backend.add_object(obj, placed.xy[i])
         object_ids[unassigned] = new_ids
         self.index.move(new_ids, placed.xy[unassigned])
-        self.pruner.watch(new_ids)
         return new_ids
 
     def finish(self) -> MaintenanceResult:
@@ -312,7 +291,7 @@ class WorldModel:
         folds history away, sec. 2.6), and prune the young uncertain objects still
         waiting for their grace period: they will not be seen again."""
         self.backend.refine()
-        t = float(self.beliefs.last_update.max(initial=0.0))
+        t = float(self.objects.last_update.max(initial=0.0))
         return self._maintain(np.empty(0, dtype=int), t, grace=0.0)
 
     def _maintain(
@@ -320,23 +299,23 @@ class WorldModel:
     ) -> MaintenanceResult:
         """Merge touched objects closer than d_inter; prune young uncertain ones."""
         cfg, result = self.config.maintenance, MaintenanceResult()
-        touched = touched[self._status[touched] == STATUS_ACTIVE]
+        touched = self.objects.active(touched)
         if cfg.merge and len(touched):
             pairs = merge_pairs(
                 touched,
                 self.backend.object_positions(touched),
                 self.index,
                 self.backend.object_positions,
-                self.beliefs.n_meas,
-                self.config.association.d_inter,
+                self.objects.n_meas,
+                self.association.d_inter,
             )
             result.merged = self._merge(pairs)
         if cfg.prune:
-            for obj in self.pruner.due(self.beliefs, t, grace):
-                if self._status[obj] == STATUS_ACTIVE:
-                    self.backend.remove_object(obj)
-                    self._retire(obj, STATUS_PRUNED)
-                    result.pruned.append(obj)
+            result.pruned = prune_due(self.objects, t, cfg, grace)
+            for obj in result.pruned:
+                self.backend.remove_object(obj)
+            if result.pruned:
+                self.objects.retire(np.array(result.pruned), STATUS_PRUNED)
         return result
 
     def _merge(self, pairs: list[tuple[int, int]]) -> list[tuple[int, int]]:
@@ -344,48 +323,40 @@ class WorldModel:
         for keep, drop in pairs:
             self.beliefs.fuse(keep, drop)
             self.backend.merge_objects(keep, drop)
-            self.drift.merge(keep, drop)
-            self._retire(drop, STATUS_MERGED, into=keep)
+            self.objects.absorb(keep, drop)
+            self.objects.retire(np.array([drop]), STATUS_MERGED, into=keep)
         return pairs
 
     # ------------------------------------------------------------------ map out
 
     def active_ids(self) -> np.ndarray:
-        return np.flatnonzero(self._status[: len(self.beliefs)] == STATUS_ACTIVE)
+        return self.objects.active_ids()
 
     def resolve(self, ids: np.ndarray) -> np.ndarray:
         """The object each id stands for now, following merges."""
-        ids = np.array(ids, dtype=np.int64, copy=True)
-        while True:
-            target = self._merged_into[ids]
-            moved = target >= 0
-            if not moved.any():
-                return ids
-            ids[moved] = target[moved]
+        return self.objects.resolve(ids)
 
     def snapshot(self, t: float | None = None, with_surface: bool = True) -> MapSnapshot:
         """The current map as plain arrays (all active objects, brought to time t)."""
         ids = self.active_ids()
-        t = t if t is not None else float(self.beliefs.last_update[ids].max(initial=0.0))
+        t = t if t is not None else float(self.objects.last_update[ids].max(initial=0.0))
         xy = self.backend.object_positions(ids) if len(ids) else np.empty((0, 2))
         h = self.beliefs.interest(ids, t)
         objects = ObjectMap(
             ids=ids,
             xy=xy,
             cov=self.backend.object_covariances(ids) if len(ids) else np.empty((0, 2, 2)),
-            n_meas=self.beliefs.n_meas[ids].copy(),
+            n_meas=self.objects.n_meas[ids].copy(),
             interest=h,
             row=self.rows.row_of(ids) if self.rows is not None else np.full(len(ids), -1),
             discrete={n: self.beliefs.probabilities(n, ids, t) for n in self._names("discrete")},
             continuous={n: self.beliefs.gaussian(n, ids, t) for n in self._names("continuous")},
         )
         trajectories, dead_reckoning = {}, {}
-        for name, robot in self._robots.items():
+        for name, chain in self.robots.items():
             times, poses = self.backend.trajectory(name)
             trajectories[name] = Trajectory(name, times, poses)
-            dead_reckoning[name] = Trajectory(
-                name, np.asarray(robot.dr_t), np.asarray(robot.dr_poses).reshape(-1, 3)
-            )
+            dead_reckoning[name] = Trajectory(name, *chain.track())
         surface = (
             interest_surface(xy, h, self.config.semantics) if with_surface and len(ids) else None
         )
@@ -402,85 +373,33 @@ class WorldModel:
 
     # ----------------------------------------------------------------- helpers
 
-    def _robot(self, name: str, t: float) -> _Robot:
-        """The robot's chain, started in the back end at its first record's time."""
-        robot = self._robots.get(name)
-        if robot is None:
-            robot = self._robots[name] = _Robot()
-        if not robot.started:
-            if robot.start_pose is None and any(r.started for r in self._robots.values()):
+    def _chain(self, name: str, t: float) -> OdometryChain:
+        """The robot's odometry chain, started in the back end at its first record's time."""
+        chain = self.robots.get(name)
+        if chain is None:
+            chain = self.robots[name] = OdometryChain()
+        if not chain.started:
+            if chain.start_pose is None and any(c.started for c in self.robots.values()):
                 # spec: a later robot without a start pose must be placed from shared
                 # landmarks; a weak prior at the origin lets the graph do so
                 self.issues[f"robot {name!r} has no start pose: weak prior at the origin"] += 1
-                robot.start_sigma = np.array([10.0, 10.0, np.pi])
-            start = np.zeros(3) if robot.start_pose is None else robot.start_pose
-            self.backend.add_robot(name, start, robot.start_sigma, t)
-            self.drift.start(name, start)
-            robot.dead_reckoning, robot.started = start.copy(), True
-            robot.dr_t.append(t)
-            robot.dr_poses.append(robot.dead_reckoning)
-        return robot
+                chain.start_sigma = np.array([10.0, 10.0, np.pi])
+            start = np.zeros(3) if chain.start_pose is None else chain.start_pose
+            self.backend.add_robot(name, start, chain.start_sigma, t)
+            chain.start(start, t)
+        return chain
 
-    @staticmethod
-    def _increment(robot: _Robot, odom: Odometry) -> np.ndarray | None:
-        """The motion since the robot's previous record, from `delta` or `pose`."""
-        if odom.delta is not None:
-            return np.asarray(odom.delta, dtype=float)
-        pose = np.asarray(odom.pose, dtype=float)
-        previous, robot.odom_pose = robot.odom_pose, pose
-        return None if previous is None else se2.between(previous, pose)
-
-    def _range_bearing_sigmas(self, det: Detection) -> tuple[float, float]:
-        """A range/bearing detection's sigmas, or the configured defaults."""
-        sensor = self.config.sensor
-        return (
-            det.sigma_range or sensor.detection_sigma_depth,
-            det.sigma_bearing or sensor.detection_sigma_lateral / max(det.range, 1e-6),
-        )
-
-    def _robot_frame_cov(self, det: Detection) -> np.ndarray:
-        if det.cov is not None:
-            return det.cov
-        if det.range is not None:
-            sigma_range, sigma_bearing = self._range_bearing_sigmas(det)
-            return detection_covariance(det.position(), sigma_range, sigma_bearing * det.range)
-        sensor = self.config.sensor
-        return detection_covariance(
-            det.position(), sensor.detection_sigma_depth, sensor.detection_sigma_lateral
-        )
-
-    def _measurement(
-        self, det: Detection, xy: np.ndarray, cov: np.ndarray
-    ) -> RelativePosition | RangeBearing:
-        """The factor's measurement in the form the detection came in (xy: corrected)."""
-        if det.range is not None and det.xy is None:
-            return RangeBearing(float(np.hypot(*xy)), det.bearing, *self._range_bearing_sigmas(det))
-        return RelativePosition(xy, cov)
-
-    def _checked(self, det: Detection) -> Detection:
-        bad = [n for n, m in det.attributes.items() if not self._fits_schema(n, m)]
-        if not bad:
-            return det
-        for name in bad:
-            self.issues[f"measurement of {name!r} not in the schema: dropped"] += 1
-        kept = {n: m for n, m in det.attributes.items() if n not in bad}
-        return dataclasses.replace(det, attributes=kept)
-
-    def _fits_schema(self, name: str, m: Measurement) -> bool:
-        spec = self.schema.attributes.get(name) if self.schema is not None else None
-        if spec is None or (spec.kind == "discrete") != isinstance(m, DiscreteMeasurement):
-            return False
-        if isinstance(m, DiscreteMeasurement):
-            return m.value in spec.values and 0.0 <= m.p <= 1.0  # type: ignore[union-attr]
-        return bool(np.isfinite(m.value) and np.isfinite(m.var) and m.var >= 0.0)
+    def _robot_index(self, name: str) -> int:
+        """A robot's number, in the order robots were first heard of."""
+        return list(self.robots).index(name)
 
     def _refresh_index(self, touched: np.ndarray) -> None:
         """Move the touched objects in the spatial index; rebuild it now and then."""
-        touched = touched[self._status[touched] == STATUS_ACTIVE]
+        touched = self.objects.active(touched)
         if len(touched):
             self.index.move(touched, self.backend.object_positions(touched))
         self._steps_since_rebuild += 1
-        cfg = self.config.association
+        cfg = self.association
         if self._steps_since_rebuild >= cfg.index_rebuild_steps or self.index.n_fresh > 500:
             ids = self.active_ids()
             self.index.rebuild(ids, self.backend.object_positions(ids))
@@ -493,28 +412,12 @@ class WorldModel:
         depth bias (geometry/depth_bias.py)."""
         if not self.config.sensor.estimate_depth_bias or len(object_ids) == 0:
             return
-        known = self.beliefs.n_meas[object_ids] > self.config.sensor.depth_bias_min_views
+        known = self.objects.n_meas[object_ids] > self.config.sensor.depth_bias_min_views
         if not known.any():
             return
         pose = self.backend.current_pose(robot)
         predicted = se2.to_robot_frame(pose, self.backend.object_positions(object_ids[known]))
         self.depth_bias.observe(placed.robot_xy[known], predicted)
-
-    def _retire(self, obj: int, status: int, into: int = -1) -> None:
-        self._status[obj] = status
-        self._merged_into[obj] = into
-        self.index.forget(np.array([obj]))
-        self.drift.forget(np.array([obj]))
-        self.pruner.forget([obj])
-
-    def _grow_status(self, n: int) -> None:
-        if n <= len(self._status):
-            return
-        size = max(n, 2 * len(self._status))
-        self._status = np.concatenate([self._status, np.zeros(size - len(self._status), np.int8)])
-        self._merged_into = np.concatenate(
-            [self._merged_into, np.full(size - len(self._merged_into), -1, np.int64)]
-        )
 
     def _names(self, kind: str) -> list[str]:
         if self.schema is None:

@@ -3,42 +3,26 @@ calls, and `make_backend`, which builds the configured back end."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from typing import Protocol, runtime_checkable
 
 import numpy as np
 
 from agrislam.config import RowsConfig, SlamConfig
-from agrislam.geometry.noise import detection_covariance
+from agrislam.geometry.noise import (
+    Measurement,
+    RangeBearing,
+    RelativePosition,
+    detection_covariance,
+)
 
 __all__ = [
     "GraphBackend",
+    "Measurement",
     "RangeBearing",
     "RelativePosition",
     "detection_covariance",
     "make_backend",
 ]
-
-
-@dataclass(frozen=True)
-class RelativePosition:
-    """An object at `xy` in the robot frame (x forward, y left) with a 2x2 covariance."""
-
-    xy: np.ndarray
-    cov: np.ndarray
-
-
-@dataclass(frozen=True)
-class RangeBearing:
-    """An object at `range` m and `bearing` rad (from the robot's x axis, left positive)."""
-
-    range: float
-    bearing: float
-    sigma_range: float
-    sigma_bearing: float
-
-
-Measurement = RelativePosition | RangeBearing
 
 
 @runtime_checkable

@@ -12,8 +12,6 @@ the chain (P the pose after each increment, Q its covariance).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-
 import numpy as np
 
 from agrislam.geometry import se2
@@ -35,69 +33,23 @@ def point_jacobian(xy: np.ndarray) -> np.ndarray:
     return jac
 
 
-@dataclass(slots=True)
-class _Chain:
-    pose: np.ndarray = field(default_factory=lambda: np.zeros(3))  # dead reckoning now
-    drift: np.ndarray = field(default_factory=lambda: np.zeros((3, 3)))  # C now
-
-
-class OdometryDrift:
-    """Each robot's accumulated chain covariance, and where it stood when each object was
-    last seen; objects last seen by another robot have no chain to the robot now."""
-
-    def __init__(self) -> None:
-        self._chains: dict[str, _Chain] = {}
-        self._seen_by: dict[int, str] = {}
-        self._seen_drift: dict[int, np.ndarray] = {}
-
-    def start(self, robot: str, pose: np.ndarray) -> None:
-        self._chains[robot] = _Chain(np.asarray(pose, dtype=float).copy())
-
-    def advance(self, robot: str, pose: np.ndarray, cov: np.ndarray) -> None:
-        """The robot moved to dead-reckoning `pose` by an increment of covariance `cov`."""
-        chain = self._chains.setdefault(robot, _Chain())
-        chain.pose = np.asarray(pose, dtype=float)
-        ad = adjoint(chain.pose)
-        chain.drift = chain.drift + ad @ cov @ ad.T
-
-    def seen(self, robot: str, object_ids: np.ndarray) -> None:
-        drift = self._chains[robot].drift
-        for obj in np.atleast_1d(object_ids).tolist():
-            self._seen_by[obj] = robot
-            self._seen_drift[obj] = drift
-
-    def merge(self, keep: int, drop: int) -> None:
-        """`keep` now stands for `drop` too: it was last seen when `drop` was, if later."""
-        robot = self._seen_by.pop(drop, None)
-        drift = self._seen_drift.pop(drop, None)
-        if robot is None or drift is None:
-            return
-        mine = self._seen_drift.get(keep)
-        if self._seen_by.get(keep) != robot or mine is None or np.trace(drift) > np.trace(mine):
-            self._seen_by[keep], self._seen_drift[keep] = robot, drift
-
-    def forget(self, object_ids: np.ndarray) -> None:
-        for obj in np.atleast_1d(object_ids).tolist():
-            self._seen_by.pop(obj, None)
-            self._seen_drift.pop(obj, None)
-
-    def since_seen(
-        self, robot: str, object_ids: np.ndarray, robot_xy: np.ndarray, map_heading: float
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """(m, k, 2, 2) map-frame covariance that the robot's drift since it last saw each
-        object gives the robot-frame detections robot_xy (m, 2), and (k,) whether that
-        chain exists. `map_heading` is the robot's heading in the map frame now."""
-        chain = self._chains[robot]
-        known = np.array([self._seen_by.get(o) == robot for o in object_ids.tolist()], bool)
-        drift = np.stack(
-            [
-                chain.drift - self._seen_drift[o] if k else np.zeros((3, 3))
-                for o, k in zip(object_ids.tolist(), known.tolist(), strict=True)
-            ]
-        ).reshape(-1, 3, 3)
-        # the detections in the dead-reckoning frame, where the chain is expressed
-        xy_dr = robot_xy @ se2.rotation(chain.pose[2]).T + chain.pose[:2]
-        jac = point_jacobian(xy_dr)  # (m, 2, 3)
-        cov = np.einsum("mij,kjl,mnl->mkin", jac, drift, jac)
-        to_map = se2.rotation(map_heading - chain.pose[2])
-        return to_map @ cov @ to_map.T, known
+def since_seen(
+    chain_pose: np.ndarray,
+    chain_drift: np.ndarray,
+    seen_drift: np.ndarray,
+    known: np.ndarray,
+    robot_xy: np.ndarray,
+    map_heading: float,
+) -> np.ndarray:
+    """(m, k, 2, 2) map-frame covariance that a robot's drift since it last saw each of k
+    objects gives its robot-frame detections robot_xy (m, 2): C_now - C_seen mapped onto
+    each detection, zero where the robot has no chain to the object (`known` False).
+    `chain_pose`/`chain_drift` are the robot's dead-reckoning pose and C now, `seen_drift`
+    (k, 3, 3) C when it saw each object, `map_heading` its heading in the map frame now."""
+    drift = np.where(known[:, None, None], chain_drift - seen_drift, 0.0)
+    # the detections in the dead-reckoning frame, where the chain is expressed
+    xy_dr = robot_xy @ se2.rotation(chain_pose[2]).T + chain_pose[:2]
+    jac = point_jacobian(xy_dr)  # (m, 2, 3)
+    cov = np.einsum("mij,kjl,mnl->mkin", jac, drift, jac)
+    to_map = se2.rotation(map_heading - chain_pose[2])
+    return to_map @ cov @ to_map.T

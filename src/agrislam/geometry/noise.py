@@ -1,12 +1,16 @@
-"""Noise models of the graph: odometry, detections (anisotropic along the viewing ray),
-row constraints (across the row only), robust kernels and marginal priors."""
+"""Noise models of the graph: the sensor model (what a record's uncertainty is, or the
+configured default), odometry, detections (anisotropic along the viewing ray), row
+constraints (across the row only), robust kernels and marginal priors."""
 
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import gtsam
 import numpy as np
 
-from agrislam.config import SlamConfig
+from agrislam.config import SensorDefaults, SlamConfig
+from agrislam.records import Detection
 
 # a detection closer than this to the robot origin has no defined bearing
 MIN_RANGE = 1e-6
@@ -33,6 +37,68 @@ def detection_covariance(
     diag[..., 0, 0] = sd2
     diag[..., 1, 1] = sl2
     return rot @ diag @ np.swapaxes(rot, -1, -2)
+
+
+@dataclass(frozen=True)
+class RelativePosition:
+    """An object at `xy` in the robot frame (x forward, y left) with a 2x2 covariance."""
+
+    xy: np.ndarray
+    cov: np.ndarray
+
+
+@dataclass(frozen=True)
+class RangeBearing:
+    """An object at `range` m and `bearing` rad (from the robot's x axis, left positive)."""
+
+    range: float
+    bearing: float
+    sigma_range: float
+    sigma_bearing: float
+
+
+Measurement = RelativePosition | RangeBearing
+
+
+class SensorModel:
+    """The uncertainty of each record: its own where it carries one, else the configured
+    default; odometry sigmas widened by `sensor.odom_sigma_scale`."""
+
+    def __init__(self, sensor: SensorDefaults) -> None:
+        self.sensor = sensor
+
+    def odometry_covariance(self, cov: np.ndarray | None) -> np.ndarray:
+        """(3, 3) covariance of a motion increment (x, y, theta in the previous frame)."""
+        sensor = self.sensor
+        cov = cov if cov is not None else np.diag(sensor.odom_cov_diag)
+        return cov * np.outer(sensor.odom_sigma_scale, sensor.odom_sigma_scale)
+
+    def range_bearing_sigmas(self, det: Detection) -> tuple[float, float]:
+        """A range/bearing detection's sigmas, or the configured defaults."""
+        sensor = self.sensor
+        return (
+            det.sigma_range or sensor.detection_sigma_depth,
+            det.sigma_bearing or sensor.detection_sigma_lateral / max(det.range, MIN_RANGE),
+        )
+
+    def detection_covariance(self, det: Detection) -> np.ndarray:
+        """(2, 2) robot-frame covariance of a detection (sec. 2.3): its own, or deep along
+        the viewing ray and narrow across it."""
+        if det.cov is not None:
+            return det.cov
+        if det.range is not None:
+            sigma_range, sigma_bearing = self.range_bearing_sigmas(det)
+            return detection_covariance(det.position(), sigma_range, sigma_bearing * det.range)
+        sensor = self.sensor
+        return detection_covariance(
+            det.position(), sensor.detection_sigma_depth, sensor.detection_sigma_lateral
+        )
+
+    def measurement(self, det: Detection, xy: np.ndarray, cov: np.ndarray) -> Measurement:
+        """The factor's measurement in the form the detection came in (xy: bias-corrected)."""
+        if det.range is not None and det.xy is None:
+            return RangeBearing(float(np.hypot(*xy)), det.bearing, *self.range_bearing_sigmas(det))
+        return RelativePosition(xy, cov)
 
 
 def range_bearing_jacobian(xy: np.ndarray) -> np.ndarray:

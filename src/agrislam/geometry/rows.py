@@ -114,7 +114,6 @@ class RowTracker:
         self.fits = 0
         self._row_of_index: dict[int, int] = {}  # lattice index m -> back-end row id
         self._next_row = 0
-        self._seen: dict[int, int] = {}  # object id -> detections counted
         self._backend: GraphBackend | None = None
 
     def use_prior(self, field: FieldPrior) -> None:
@@ -126,31 +125,34 @@ class RowTracker:
 
     # ------------------------------------------------------------------ per step
     def after_step(
-        self, backend: GraphBackend, touched_object_ids: np.ndarray, n_new_detections: int
+        self,
+        backend: GraphBackend,
+        touched_object_ids: np.ndarray,
+        n_new_detections: int,
+        frames_seen: np.ndarray,
     ) -> None:
         """Count the step's detections; fit (or refit) rows when due; give touched plants
-        near a row their row constraint."""
+        near a row their row constraint. `frames_seen[i]`: frames object i was seen in."""
         self._backend = backend
         self.n_detections += int(n_new_detections)
-        for object_id in np.asarray(touched_object_ids, dtype=np.int64).tolist():
-            self._seen[object_id] = self._seen.get(object_id, 0) + 1
         if self.n_detections >= self.next_fit:
-            self._fit(backend)
+            self._fit(backend, frames_seen)
             self.next_fit = 2 * self.n_detections  # refit as the evidence doubles
         if self.angle is not None:
-            self._assign(backend, np.asarray(touched_object_ids, dtype=np.int64))
+            self._assign(backend, np.asarray(touched_object_ids, dtype=np.int64), frames_seen)
 
-    def _fit_points(self, backend: GraphBackend) -> tuple[np.ndarray, np.ndarray]:
+    def _fit_points(
+        self, backend: GraphBackend, frames_seen: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Objects seen often enough, evenly thinned to at most FIT_POINTS: a refit of a
         large field then costs no more than one of a mid-sized one."""
         ids = backend.object_ids()
-        seen = np.array([self._seen.get(int(i), 0) for i in ids], dtype=np.int64)
-        ids = ids[seen >= self.config.min_detections]
+        ids = ids[frames_seen[ids] >= self.config.min_detections]
         ids = ids[:: max(1, -(-len(ids) // FIT_POINTS))]
         return ids, backend.object_positions(ids)
 
-    def _fit(self, backend: GraphBackend) -> None:
-        ids, points = self._fit_points(backend)
+    def _fit(self, backend: GraphBackend, frames_seen: np.ndarray) -> None:
+        ids, points = self._fit_points(backend, frames_seen)
         if len(ids) < 2:
             return
         sigma = math.radians(self.config.angle_prior_sigma_deg)
@@ -178,14 +180,13 @@ class RowTracker:
         for row in self._row_of_index.values():
             backend.set_row_angle(row, self.angle)
 
-    def _assign(self, backend: GraphBackend, object_ids: np.ndarray) -> None:
+    def _assign(
+        self, backend: GraphBackend, object_ids: np.ndarray, frames_seen: np.ndarray
+    ) -> None:
         """Plants within max_offset of a row get a constraint to it (none along it)."""
         if len(object_ids) == 0:
             return
-        ready = np.array(
-            [self._seen.get(int(i), 0) >= self.config.min_detections for i in object_ids]
-        )
-        candidates = object_ids[ready]
+        candidates = object_ids[frames_seen[object_ids] >= self.config.min_detections]
         candidates = candidates[backend.rows_of(candidates) < 0]
         if len(candidates) == 0:
             return

@@ -1,0 +1,69 @@
+"""One robot's odometry chain as the world model keeps it (DESIGN step 2): the motion
+since its last pose node, composed into one increment with its covariance; its
+dead-reckoning pose and track; and the drift its chain has accumulated
+(geometry/drift.py), which bounds how far it may have wandered since it saw an object.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from agrislam.geometry import se2
+from agrislam.geometry.drift import adjoint
+
+
+class OdometryChain:
+    """Odometry of one robot between pose nodes, and its dead reckoning."""
+
+    def __init__(
+        self, start_pose: np.ndarray | None = None, start_sigma: np.ndarray | None = None
+    ) -> None:
+        self.start_pose = start_pose  # map-frame prior from the survey's meta
+        self.start_sigma = start_sigma
+        self.started = False  # added to the back end
+        self.pose = np.zeros(3)  # dead reckoning now
+        self.drift = np.zeros((3, 3))  # C: prefix sum of Ad(P) Q Ad(P)^T (drift.py)
+        self._pending: tuple[np.ndarray, np.ndarray] | None = None  # composed delta, cov
+        self._odom_pose: np.ndarray | None = None  # last odometry-frame pose, if given
+        self._track_t: list[float] = []
+        self._track: list[np.ndarray] = []
+
+    def start(self, pose: np.ndarray, t: float) -> None:
+        """The chain begins at map-frame `pose` at time t."""
+        self.pose, self.started = np.asarray(pose, dtype=float).copy(), True
+        self._record(t)
+
+    def increment(self, pose: np.ndarray | None, delta: np.ndarray | None) -> np.ndarray | None:
+        """The motion since the previous record, from its `delta` or its odometry-frame
+        `pose` (None for the first pose: it only marks where the odometry frame starts)."""
+        if delta is not None:
+            return np.asarray(delta, dtype=float)
+        pose = np.asarray(pose, dtype=float)
+        previous, self._odom_pose = self._odom_pose, pose
+        return None if previous is None else se2.between(previous, pose)
+
+    def move(self, t: float, delta: np.ndarray, cov: np.ndarray) -> None:
+        """Compose a motion increment into the pending one; dead reckoning follows."""
+        if self._pending is None:
+            self._pending = (delta, cov)
+        else:
+            self._pending = se2.compose_increments(*self._pending, delta, cov)
+        self.pose = se2.compose(self.pose, delta)
+        self._record(t)
+
+    def take_pending(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """The increment since the last pose node and its covariance, or None if the robot
+        has not moved; the chain's drift grows by it (drift.py: C += Ad(P) Q Ad(P)^T)."""
+        pending, self._pending = self._pending, None
+        if pending is not None:
+            ad = adjoint(self.pose)
+            self.drift = self.drift + ad @ pending[1] @ ad.T
+        return pending
+
+    def track(self) -> tuple[np.ndarray, np.ndarray]:
+        """(m,) times and (m, 3) dead-reckoning poses so far."""
+        return np.asarray(self._track_t), np.asarray(self._track).reshape(-1, 3)
+
+    def _record(self, t: float) -> None:
+        self._track_t.append(t)
+        self._track.append(self.pose)

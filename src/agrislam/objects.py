@@ -1,0 +1,156 @@
+"""The object table: every object the map has ever had, one row each, as a struct of
+arrays grown by doubling (DESIGN.md "State layout").
+
+It owns what the pipeline knows of an object apart from its position (the back end's)
+and its beliefs (its `BeliefTable`, the table's semantic columns, with the measurement
+count and last update the interest heuristic reads): whether it is active, merged into
+another or pruned; in how many frames it was seen and which robot saw it last, with that
+robot's odometry drift then (geometry/drift.py); whether the pruner still watches it.
+`retire` is the one way out of the map: the parts that keep state of their own per
+object (the spatial index) subscribe to it.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+
+from agrislam.semantics.beliefs import BeliefTable
+from agrislam.snapshot import STATUS_ACTIVE
+
+NO_ROBOT = -1
+
+
+class ObjectTable:
+    """Rows of objects: lifecycle, sightings and beliefs; ids are row numbers, never reused."""
+
+    def __init__(self, beliefs: BeliefTable, capacity: int = 1024) -> None:
+        self.beliefs = beliefs
+        self._n = len(beliefs)
+        capacity = max(capacity, self._n, 1)
+        self._status = np.full(capacity, STATUS_ACTIVE, dtype=np.int8)
+        self._merged_into = np.full(capacity, -1, dtype=np.int64)
+        self._n_frames = np.zeros(capacity, dtype=np.int64)
+        self._seen_by = np.full(capacity, NO_ROBOT, dtype=np.int64)
+        self._seen_drift = np.zeros((capacity, 3, 3))
+        self._young = np.zeros(capacity, dtype=bool)
+        self._on_retire: list[Callable[[np.ndarray], None]] = []
+
+    def __len__(self) -> int:
+        return self._n
+
+    # ------------------------------------------------------------------ columns
+    @property
+    def status(self) -> np.ndarray:
+        """STATUS_ACTIVE, STATUS_MERGED or STATUS_PRUNED per object (n,)."""
+        return self._status[: self._n]
+
+    @property
+    def n_frames(self) -> np.ndarray:
+        """Frames each object was seen in (n,): what rows wait for before a plant joins."""
+        return self._n_frames[: self._n]
+
+    @property
+    def n_meas(self) -> np.ndarray:
+        """Measurements per object (n,), the count of eq. (2)."""
+        return self.beliefs.n_meas
+
+    @property
+    def last_update(self) -> np.ndarray:
+        """Time of each object's last measurement (n,)."""
+        return self.beliefs.last_update
+
+    @property
+    def young(self) -> np.ndarray:
+        """Objects the pruner still watches (n,), read-write for the pruner."""
+        return self._young[: self._n]
+
+    # ---------------------------------------------------------------- lifecycle
+    def add(self, count: int, t: float) -> np.ndarray:
+        """`count` new active objects at time t, watched by the pruner; their ids."""
+        ids = self.beliefs.add(count, t)
+        self._reserve(len(self.beliefs))
+        self._status[ids] = STATUS_ACTIVE
+        self._merged_into[ids] = -1
+        self._n_frames[ids] = 0
+        self._seen_by[ids] = NO_ROBOT
+        self._young[ids] = True
+        self._n = len(self.beliefs)
+        return ids
+
+    def seen(self, ids: np.ndarray, robot: int, drift: np.ndarray) -> None:
+        """The objects (unique ids) were seen in one frame of robot `robot` (its index),
+        whose dead-reckoning chain had accumulated `drift` (3x3) then."""
+        self._n_frames[ids] += 1
+        self._seen_by[ids] = robot
+        self._seen_drift[ids] = drift
+
+    def absorb(self, keep: int, drop: int) -> None:
+        """`keep` now stands for `drop` too: it was last seen when `drop` was, if later
+        by the same robot's chain (or seen by no robot of its own)."""
+        robot = self._seen_by[drop]
+        if robot == NO_ROBOT:
+            return
+        later = np.trace(self._seen_drift[drop]) > np.trace(self._seen_drift[keep])
+        if self._seen_by[keep] != robot or later:
+            self._seen_by[keep] = robot
+            self._seen_drift[keep] = self._seen_drift[drop]
+
+    def retire(self, ids: np.ndarray, status: int, into: int = -1) -> None:
+        """Objects leave the map: merged into `into`, or pruned. Subscribers hear of it."""
+        ids = np.atleast_1d(np.asarray(ids, dtype=np.int64))
+        self._status[ids] = status
+        self._merged_into[ids] = into
+        self._seen_by[ids] = NO_ROBOT
+        self._young[ids] = False
+        for listener in self._on_retire:
+            listener(ids)
+
+    def on_retire(self, listener: Callable[[np.ndarray], None]) -> None:
+        """Call `listener(ids)` whenever objects are retired."""
+        self._on_retire.append(listener)
+
+    # ------------------------------------------------------------------ queries
+    def active_ids(self) -> np.ndarray:
+        return np.flatnonzero(self.status == STATUS_ACTIVE)
+
+    def active(self, ids: np.ndarray) -> np.ndarray:
+        """The given ids that are still active."""
+        return ids[self._status[ids] == STATUS_ACTIVE]
+
+    def resolve(self, ids: np.ndarray) -> np.ndarray:
+        """The object each id stands for now, following merges."""
+        ids = np.array(ids, dtype=np.int64, copy=True)
+        while True:
+            target = self._merged_into[ids]
+            moved = target >= 0
+            if not moved.any():
+                return ids
+            ids[moved] = target[moved]
+
+    def last_seen(self, ids: np.ndarray, robot: int) -> tuple[np.ndarray, np.ndarray]:
+        """(k,) whether `robot` (index) was the last to see each object, and (k, 3, 3) its
+        chain's drift then (zeros where it was not)."""
+        known = self._seen_by[ids] == robot
+        return known, np.where(known[:, None, None], self._seen_drift[ids], 0.0)
+
+    # ------------------------------------------------------------------ storage
+    def _reserve(self, n: int) -> None:
+        """Room for n rows; capacity doubles, so growing is amortised O(1) per object."""
+        capacity = len(self._status)
+        if n <= capacity:
+            return
+        size = max(n, 2 * capacity)
+        self._status = _grown(self._status, size, STATUS_ACTIVE)
+        self._merged_into = _grown(self._merged_into, size, -1)
+        self._n_frames = _grown(self._n_frames, size, 0)
+        self._seen_by = _grown(self._seen_by, size, NO_ROBOT)
+        self._seen_drift = _grown(self._seen_drift, size, 0.0)
+        self._young = _grown(self._young, size, False)
+
+
+def _grown(old: np.ndarray, size: int, fill: float) -> np.ndarray:
+    new = np.full((size, *old.shape[1:]), fill, dtype=old.dtype)
+    new[: len(old)] = old
+    return new
