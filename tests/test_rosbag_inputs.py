@@ -18,7 +18,7 @@ from agrislam.config import AgrislamConfig
 from agrislam.perception.camera import camera_mount, quaternion_from_yaw, rigid_transform
 from agrislam.perception.synthetic import FacingDisc, instance_box, render_depth
 from agrislam.records import Detections, DiscreteMeasurement, Odometry, Record
-from agrislam.sources.ros_messages import (
+from agrislam.ros.messages import (
     CAMERA_INFO,
     DETECTION2D_ARRAY,
     DETECTION3D_ARRAY,

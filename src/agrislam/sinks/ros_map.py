@@ -21,6 +21,13 @@ import numpy as np
 from matplotlib import colormaps
 
 from agrislam.perception.camera import quaternion_from_yaw
+from agrislam.ros.messages import (
+    MARKER_ARRAY,
+    PATH,
+    MessageFactory,
+    open_ros2_writer,
+    seconds_to_ns,
+)
 from agrislam.sinks.csv import (
     continuous_scale,
     continuous_sureness,
@@ -30,13 +37,6 @@ from agrislam.sinks.csv import (
 )
 from agrislam.sinks.report import opacity, value_colours
 from agrislam.snapshot import MapSnapshot, Trajectory
-from agrislam.sources.ros_messages import (
-    MARKER_ARRAY,
-    PATH,
-    MessageFactory,
-    open_ros2_writer,
-    seconds_to_ns,
-)
 
 PLANTS_TOPIC = "/agrislam/plants"
 ELLIPSE_SIGMAS = 2.0

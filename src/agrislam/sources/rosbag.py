@@ -74,8 +74,7 @@ from agrislam.records import (
     TruthObject,
     TruthPose,
 )
-from agrislam.sources.jsonl import LogError, read_log, record_to_json
-from agrislam.sources.ros_messages import (
+from agrislam.ros.messages import (
     CAMERA_INFO,
     DETECTION2D_ARRAY,
     DETECTION3D_ARRAY,
@@ -91,6 +90,7 @@ from agrislam.sources.ros_messages import (
     stamp_to_seconds,
     typestore,
 )
+from agrislam.sources.jsonl import LogError, read_log, record_to_json
 
 META_TOPIC = "/agrislam/meta"
 TRUTH_TOPIC = "/agrislam/truth"
