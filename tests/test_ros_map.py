@@ -12,7 +12,7 @@ import pytest
 from matplotlib.colors import to_rgba
 from rosbags.highlevel import AnyReader
 
-from agrislam.perception.camera import yaw_from_quaternion
+from agrislam.geometry.se2 import yaw_from_quaternion
 from agrislam.sinks.ros_map import covariance_ellipses, plant_style, write_map_mcap
 from agrislam.snapshot import MapSnapshot
 

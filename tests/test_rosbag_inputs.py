@@ -15,7 +15,8 @@ from rosbags.rosbag1 import Writer as Ros1Writer
 from rosbags.typesys import get_types_from_msg
 
 from agrislam.config import AgrislamConfig
-from agrislam.perception.camera import camera_mount, quaternion_from_yaw, rigid_transform
+from agrislam.geometry.se2 import quaternion_from_yaw
+from agrislam.perception.camera import camera_mount, rigid_transform
 from agrislam.perception.synthetic import FacingDisc, instance_box, render_depth
 from agrislam.records import Detections, DiscreteMeasurement, Odometry, Record
 from agrislam.ros.messages import (

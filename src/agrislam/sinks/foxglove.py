@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from agrislam.perception.camera import quaternion_from_yaw
+from agrislam.geometry.se2 import quaternion_from_yaw
 from agrislam.sinks.csv import discrete_columns
 from agrislam.sinks.ros_map import (
     covariance_ellipses,

@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 from matplotlib import colormaps
 
-from agrislam.perception.camera import quaternion_from_yaw
+from agrislam.geometry.se2 import quaternion_from_yaw
 from agrislam.ros.messages import (
     MARKER_ARRAY,
     PATH,

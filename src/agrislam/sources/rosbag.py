@@ -52,10 +52,9 @@ from rosbags.highlevel import AnyReader, AnyReaderError
 from rosbags.interfaces import MessageDefinitionFormat
 
 from agrislam.config import AgrislamConfig, FieldSchema
-from agrislam.geometry.se2 import between, compose
+from agrislam.geometry.se2 import between, compose, quaternion_from_yaw
 from agrislam.perception.camera import (
     PinholeCamera,
-    quaternion_from_yaw,
     rigid_transform,
     rotation_from_quaternion,
 )
