@@ -25,8 +25,9 @@ from agrislam.records import (
 )
 from agrislam.sim.config import SimConfig
 from agrislam.sim.simulator import Simulator
-from agrislam.sources.jsonl import record_to_json
-from agrislam.sources.rosbag import BagSourceConfig, open_bag_source, write_survey_bag
+from agrislam.sinks.jsonl import record_to_json
+from agrislam.sinks.rosbag import write_survey_bag
+from agrislam.sources.rosbag import BagSourceConfig, open_bag_source
 
 
 def simulated(**detector: Any) -> list[Record]:

@@ -155,11 +155,11 @@ def _run(records: Iterable[Record], cfg: AgrislamConfig, out: Path, what: str) -
 
 def _record(records: list[Record], path: Path) -> None:
     if path.suffix == ".jsonl":
-        from agrislam.sources.jsonl import write_log
+        from agrislam.sinks.jsonl import write_log
 
         write_log(records, path)
     else:
-        from agrislam.sources.rosbag import write_survey_bag
+        from agrislam.sinks.rosbag import write_survey_bag
 
         write_survey_bag(records, path)
 

@@ -1,6 +1,6 @@
-"""ROS bags in and out: a rosbag2 folder (sqlite3 or MCAP), a bare .mcap file, or a ROS 1
-.bag read as agrislam records (rosbags; no ROS installation needed), and a simulated survey
-written as a ROS 2 bag.
+"""ROS bags as a source: a rosbag2 folder (sqlite3 or MCAP), a bare .mcap file, or a ROS 1
+.bag read as agrislam records (rosbags; no ROS installation needed). `sinks.rosbag` writes
+a survey as a bag this reads back.
 
 What the reader takes (topics named in `BagSourceConfig` or found by type):
 
@@ -37,11 +37,10 @@ from __future__ import annotations
 
 import dataclasses
 import io
-import json
 import math
 import re
 from collections import Counter, deque
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
@@ -52,7 +51,7 @@ from rosbags.highlevel import AnyReader, AnyReaderError
 from rosbags.interfaces import MessageDefinitionFormat
 
 from agrislam.config import AgrislamConfig, FieldSchema
-from agrislam.geometry.se2 import between, compose, quaternion_from_yaw
+from agrislam.geometry.se2 import between
 from agrislam.perception.camera import (
     PinholeCamera,
     rigid_transform,
@@ -62,16 +61,22 @@ from agrislam.perception.config import PerceptionConfig
 from agrislam.perception.detector import ImageDetection, RgbdDetector
 from agrislam.perception.label_map import LabelMap, UnknownLabelError
 from agrislam.records import (
-    ContinuousMeasurement,
     Detection,
     Detections,
-    DiscreteMeasurement,
     Measurement,
     Meta,
     Odometry,
     Record,
     TruthObject,
     TruthPose,
+)
+from agrislam.ros.conventions import (
+    META_TOPIC,
+    POSE_COV_INDEX,
+    TRUTH_TOPIC,
+    UNKNOWN_COVARIANCE,
+    is_measurement_class_id,
+    measurement_of_class_id,
 )
 from agrislam.ros.messages import (
     CAMERA_INFO,
@@ -82,20 +87,12 @@ from agrislam.ros.messages import (
     STRING,
     TF_MESSAGE,
     Layout,
-    MessageFactory,
     image_array,
-    open_ros2_writer,
     seconds_to_ns,
     stamp_to_seconds,
     typestore,
 )
-from agrislam.sources.jsonl import LogError, read_log, record_to_json
-
-META_TOPIC = "/agrislam/meta"
-TRUTH_TOPIC = "/agrislam/truth"
-UNKNOWN_COVARIANCE = -1.0  # covariance[0] of a pose whose covariance is not known (ROS)
-POSE_COV_INDEX = np.array([0, 1, 5])  # x, y, yaw in a row-major 6x6 pose covariance
-_CONTINUOUS = re.compile(r"^(?P<name>[^=;]+)=(?P<value>[^;]+);var=(?P<var>.+)$")
+from agrislam.sources.jsonl import LogError, read_log
 
 
 class BagSourceConfig(BaseModel):
@@ -218,16 +215,6 @@ def _planar(T: np.ndarray) -> np.ndarray:
     return np.array([T[0, 3], T[1, 3], math.atan2(T[1, 0], T[0, 0])])
 
 
-def _measurement_class_id(name: str, m: Measurement) -> tuple[str, float]:
-    """(class_id, score) of one attribute measurement: ``attr=value`` with p, or
-    ``attr=value;var=v`` with score 1 for a continuous one."""
-    if "=" in name or ";" in name:
-        raise ValueError(f"attribute name {name!r} cannot be written as a class_id ('=', ';')")
-    if isinstance(m, DiscreteMeasurement):
-        return f"{name}={m.value}", float(m.p)
-    return f"{name}={float(m.value)!r};var={float(m.var)!r}", 1.0
-
-
 def _parse_hypotheses(
     hyps: list[tuple[str, float]], class_names: dict[str, str]
 ) -> tuple[dict[str, Measurement], str | None, float | None]:
@@ -237,24 +224,14 @@ def _parse_hypotheses(
     label, label_p = None, None
     for class_id, score in hyps:
         class_id = class_names.get(class_id, class_id)
-        if "=" not in class_id:
+        if not is_measurement_class_id(class_id):
             if label is None or (not math.isnan(score) and score > (label_p or -1.0)):
                 label, label_p = class_id, (None if math.isnan(score) else score)
             continue
-        cont = _CONTINUOUS.match(class_id)
-        if cont:
-            name = cont["name"]
-            try:
-                m: Measurement = ContinuousMeasurement(float(cont["value"]), float(cont["var"]))
-            except ValueError:
-                raise _SkipError("bad_hypothesis", f"class_id {class_id!r}: not numbers") from None
-        else:
-            name, value = class_id.split("=", 1)
-            if not 0.0 <= score <= 1.0:
-                raise _SkipError(
-                    "bad_hypothesis", f"class_id {class_id!r}: score {score} not in [0, 1]"
-                )
-            m = DiscreteMeasurement(value, score)
+        try:
+            name, m = measurement_of_class_id(class_id, score)
+        except ValueError as err:
+            raise _SkipError("bad_hypothesis", str(err)) from None
         if score > best.get(name, -1.0):
             attributes[name], best[name] = m, score
     return attributes, label, label_p
@@ -843,113 +820,3 @@ def open_bag_source(
 # ----------------------------------------------------------------------------- writer
 
 
-class _SurveyBagWriter:
-    def __init__(self, writer: Any, factory: MessageFactory) -> None:
-        self.writer, self.make = writer, factory
-        self.connections: dict[str, Any] = {}
-        self.odom_pose: dict[str, np.ndarray] = {}
-        self.last_ns = 0
-        self.count = 0
-
-    def _write(self, topic: str, msgtype: str, msg: Any, ns: int) -> None:
-        conn = self.connections.get(topic)
-        if conn is None:
-            conn = self.writer.add_connection(topic, msgtype, typestore=self.make.store)
-            self.connections[topic] = conn
-        self.writer.write(conn, ns, self.make.serialize(msg, msgtype))
-        self.count += 1
-
-    def write(self, rec: Record) -> None:
-        if isinstance(rec, Odometry):
-            self._odometry(rec)
-        elif isinstance(rec, Detections):
-            self._detections(rec)
-        elif isinstance(rec, Meta | TruthPose | TruthObject):
-            topic = META_TOPIC if isinstance(rec, Meta) else TRUTH_TOPIC
-            if isinstance(rec, TruthPose):
-                self.last_ns = max(self.last_ns, seconds_to_ns(rec.t))
-            text = json.dumps(record_to_json(rec), separators=(",", ":"), allow_nan=False)
-            self._write(topic, STRING, self.make.T[STRING](data=text), self.last_ns)
-        else:
-            raise TypeError(f"not a record: {rec!r}")
-
-    def _odometry(self, rec: Odometry) -> None:
-        if rec.pose is not None:
-            pose = np.asarray(rec.pose, dtype=float)
-        else:  # integrate the increments into the odometry-frame pose nav_msgs carries
-            previous = self.odom_pose.get(rec.robot, np.zeros(3))
-            pose = compose(previous, np.asarray(rec.delta, dtype=float))
-        self.odom_pose[rec.robot] = pose
-        cov6 = np.zeros((6, 6))
-        if rec.cov is None:
-            cov6[0, 0] = UNKNOWN_COVARIANCE
-        else:
-            cov6[np.ix_(POSE_COV_INDEX, POSE_COV_INDEX)] = rec.cov
-        msg = self.make.odometry(
-            rec.t,
-            f"{rec.robot}/odom",
-            f"{rec.robot}/base_link",
-            (pose[0], pose[1], 0.0),
-            quaternion_from_yaw(pose[2]),
-            cov6,
-        )
-        ns = seconds_to_ns(rec.t)
-        self.last_ns = max(self.last_ns, ns)
-        self._write(f"/{rec.robot}/odom", ODOMETRY, msg, ns)
-
-    def _detections(self, rec: Detections) -> None:
-        frame = f"{rec.robot}/base_link"
-        dets = []
-        for d in rec.objects:
-            xy, cov = _xy_cov(d)
-            hyps: list[tuple[str | int, float]] = []
-            if d.label is not None:
-                hyps.append((d.label, math.nan if d.label_p is None else float(d.label_p)))
-            hyps += [_measurement_class_id(n, m) for n, m in d.attributes.items()]
-            center = (xy[0], xy[1], 0.0)
-            dets.append(self.make.detection3d(rec.t, frame, center, hyps, cov, d.truth_id or ""))
-        msg = self.make.detection_array(rec.t, frame, dets)
-        topic = (
-            f"/{rec.robot}/{rec.sensor}/detections" if rec.sensor else f"/{rec.robot}/detections"
-        )
-        ns = seconds_to_ns(rec.t)
-        self.last_ns = max(self.last_ns, ns)
-        self._write(topic, DETECTION3D_ARRAY, msg, ns)
-
-
-def _xy_cov(d: Detection) -> tuple[np.ndarray, np.ndarray | None]:
-    """Position and covariance of a detection in either geometry (range/bearing sigmas
-    become the ray-aligned covariance R diag(sr^2, (r sb)^2) R^T)."""
-    if d.xy is not None:
-        return np.asarray(d.xy, dtype=float), None if d.cov is None else np.asarray(
-            d.cov, dtype=float
-        )
-    xy = d.position()
-    if d.sigma_range is None or d.sigma_bearing is None:
-        return xy, None
-    c, s = math.cos(d.bearing), math.sin(d.bearing)  # type: ignore[arg-type]
-    R = np.array([[c, -s], [s, c]])
-    return xy, R @ np.diag([d.sigma_range**2, (d.range * d.sigma_bearing) ** 2]) @ R.T  # type: ignore[operator]
-
-
-def write_survey_bag(
-    records: Iterable[Record], path: str | Path, storage: Literal["mcap", "sqlite3"] = "mcap"
-) -> int:
-    """Write a survey as a ROS 2 bag; returns the number of messages.
-
-    `path` ending in ``.mcap``: a bare MCAP file; otherwise a rosbag2 folder with the given
-    storage. Odometry -> ``/<robot>/odom`` (nav_msgs/Odometry, frames ``<robot>/odom`` and
-    ``<robot>/base_link``; deltas are integrated into poses; the increment covariance in
-    the pose covariance, -1 in its first entry when unknown). Detections ->
-    ``/<robot>/[<sensor>/]detections`` (vision_msgs 4.x Detection3DArray in the base frame:
-    one hypothesis per attribute, ``attr=value`` with p as score, or
-    ``attr=value;var=v``; a combined label as its own hypothesis (NaN score when it has
-    none); the covariance in the hypothesis pose; truth_id as ``id``; range/bearing
-    detections as position + ray covariance). Meta, TruthPose and TruthObject ->
-    ``/agrislam/meta`` and ``/agrislam/truth`` as survey-log JSON lines (std_msgs/String).
-    """
-    with open_ros2_writer(path, storage) as writer:
-        out = _SurveyBagWriter(writer, MessageFactory("humble"))
-        for rec in records:
-            out.write(rec)
-        return out.count
