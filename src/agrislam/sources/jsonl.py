@@ -32,6 +32,7 @@ from agrislam.records import (
     TruthObject,
     TruthPose,
 )
+from agrislam.sources.base import SourceError
 
 VERSION = 1
 # the start-pose std a robot gets when meta gives a start_pose without start_sigma (m, m, rad)
@@ -56,7 +57,7 @@ REASONS = {
 }
 
 
-class LogError(ValueError):
+class LogError(SourceError):
     """A bad line: where it is and why."""
 
     def __init__(self, line: int, reason: str, message: str, source: str = "") -> None:
@@ -417,11 +418,11 @@ def _open(path: Path, mode: str) -> IO[bytes]:
 
 
 class LogReader:
-    """Iterate the records of a survey log, line by line.
+    """A survey log as a source: its records, line by line (`records()` or iterating it).
 
     strict: raise `LogError` at the first bad line (records before it have been yielded);
-    otherwise skip bad lines and count them in `report`. `schema` validates attributes when
-    the log's meta has none."""
+    otherwise skip bad lines and count them in `report` (that of the latest pass). `schema`
+    validates attributes when the log's meta has none."""
 
     def __init__(
         self,
@@ -436,7 +437,15 @@ class LogReader:
         name = str(source) if isinstance(source, (str, Path)) else getattr(source, "name", "")
         self.report = ReadReport(source=str(name))
 
+    @property
+    def name(self) -> str:
+        return self.report.source
+
+    def records(self) -> Iterator[Record]:
+        return iter(self)
+
     def __iter__(self) -> Iterator[Record]:
+        self.report = ReadReport(source=self.report.source)
         if isinstance(self.source, (str, Path)):
             with _open(Path(self.source), "r") as f:
                 yield from self._lines(f)
