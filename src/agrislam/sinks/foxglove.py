@@ -91,7 +91,7 @@ def write_foxglove_mcap(
     objects = snapshot.objects
     style = plant_style(snapshot, attribute)
     xy = np.asarray(objects.xy, dtype=float).reshape(-1, 2)
-    size = diameter * (0.5 + 0.5 * style.sureness)
+    size = style.sizes(diameter)
     axes, heading = covariance_ellipses(objects.cov) if len(objects) else (np.empty((0, 2)), [])
     metadata = entity_metadata(snapshot)
     entities = []

@@ -101,7 +101,7 @@ def plant_markers(
     build = _MarkerBuilder(make, t, frame)
     markers = [build.marker("", 0, "SPHERE", action="DELETEALL")]  # replace an older map
     xy = np.asarray(objects.xy, dtype=float).reshape(-1, 2).tolist()
-    size = (diameter * (0.5 + 0.5 * style.sureness)).tolist()
+    size = style.sizes(diameter).tolist()
     rgba = style.rgba.tolist()
     axes, heading = covariance_ellipses(objects.cov) if len(objects) else (np.empty((0, 2)), [])
     for i, ident in enumerate(np.asarray(objects.ids).tolist()):

@@ -34,6 +34,11 @@ class PlantStyle:
     sureness: np.ndarray
     labels: list[str]
 
+    def sizes(self, diameter: float) -> np.ndarray:
+        """Marker diameters (k,): half of `diameter` for a belief that knows nothing, all
+        of it for a certain one."""
+        return diameter * (0.5 + 0.5 * self.sureness)
+
 
 def default_attribute(snapshot: MapSnapshot) -> str | None:
     """The first discrete attribute of the map, else the first continuous one."""
