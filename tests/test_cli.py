@@ -104,3 +104,32 @@ def test_the_simulated_survey_as_an_mcap_bag_gives_the_same_map(small_run, tmp_p
     for name, belief in jsonl_map.objects.discrete.items():
         np.testing.assert_allclose(bag_map.objects.discrete[name], belief, atol=1e-9)
     assert (tmp_path / "b" / "map.mcap").stat().st_size > 0
+
+
+def test_run_on_a_sim_uri_is_simulate(small_run, tmp_path):
+    """The simulator is one more source: `run sim:?...` maps what `simulate` maps."""
+    out, _ = small_run
+    result = runner.invoke(app, ["run", "sim:?plants=150&seed=3", "--out", str(tmp_path)])
+    assert result.exit_code == 0, result.output
+    assert "sim:?plants=150&seed=3&preset=colour_size: 406 Detections" in result.output
+    assert (tmp_path / "objects.csv").read_text() == (out / "objects.csv").read_text()
+
+
+def test_run_reads_the_bag_and_sim_sections_of_one_config(small_run, tmp_path):
+    _, log = small_run
+    config = tmp_path / "c.yaml"
+    config.write_text("bag:\n  odometry_form: delta\nsim:\n  seed: 3\n")
+    result = runner.invoke(app, ["run", str(log), "-c", str(config), "--out", str(tmp_path)])
+    assert result.exit_code == 0, result.output
+    config.write_text("sim:\n  field:\n    n_rows: 0\n")  # each source checks its own section
+    result = runner.invoke(app, ["run", "sim:?plants=20", "-c", str(config)])
+    assert result.exit_code == 2 and "field.n_rows" in result.output
+
+
+def test_run_names_what_it_reads_when_the_input_is_unknown(tmp_path):
+    (tmp_path / "survey.txt").write_text("")
+    result = runner.invoke(app, ["run", str(tmp_path / "survey.txt")])
+    assert result.exit_code == 2
+    assert "not a kind of input agrislam reads" in result.output and ".jsonl" in result.output
+    result = runner.invoke(app, ["run", str(tmp_path / "missing.jsonl")])
+    assert result.exit_code == 2 and "no such file" in result.output

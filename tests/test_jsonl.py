@@ -19,7 +19,8 @@ from agrislam.records import (
     TruthObject,
     TruthPose,
 )
-from agrislam.sources.jsonl import REASONS, LogError, read_log, record_to_json, write_log
+from agrislam.sinks.jsonl import record_to_json, write_log
+from agrislam.sources.jsonl import REASONS, LogError, read_log
 
 SCHEMA = {
     "attributes": {

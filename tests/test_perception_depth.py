@@ -6,12 +6,11 @@ import numpy as np
 import pytest
 
 from agrislam.config import AgrislamConfig
+from agrislam.geometry.se2 import quaternion_from_yaw, yaw_from_quaternion
 from agrislam.perception.camera import (
     PinholeCamera,
     camera_mount,
-    quaternion_from_yaw,
     rotation_from_quaternion,
-    yaw_from_quaternion,
 )
 from agrislam.perception.config import PerceptionConfig
 from agrislam.perception.mask_depth import (

@@ -12,8 +12,9 @@ import pytest
 from matplotlib.colors import to_rgba
 from rosbags.highlevel import AnyReader
 
-from agrislam.perception.camera import yaw_from_quaternion
-from agrislam.sinks.ros_map import covariance_ellipses, plant_style, write_map_mcap
+from agrislam.geometry.se2 import yaw_from_quaternion
+from agrislam.sinks.ros_map import write_map_mcap
+from agrislam.sinks.scene import covariance_ellipses, plant_style
 from agrislam.snapshot import MapSnapshot
 
 COLOURS = ["blue", "cyan", "green", "orange", "pink", "red", "yellow"]  # conftest's schema

@@ -15,10 +15,11 @@ from rosbags.rosbag1 import Writer as Ros1Writer
 from rosbags.typesys import get_types_from_msg
 
 from agrislam.config import AgrislamConfig
-from agrislam.perception.camera import camera_mount, quaternion_from_yaw, rigid_transform
+from agrislam.geometry.se2 import quaternion_from_yaw
+from agrislam.perception.camera import camera_mount, rigid_transform
 from agrislam.perception.synthetic import FacingDisc, instance_box, render_depth
 from agrislam.records import Detections, DiscreteMeasurement, Odometry, Record
-from agrislam.sources.ros_messages import (
+from agrislam.ros.messages import (
     CAMERA_INFO,
     DETECTION2D_ARRAY,
     DETECTION3D_ARRAY,
@@ -28,7 +29,9 @@ from agrislam.sources.ros_messages import (
     MessageFactory,
     open_ros2_writer,
 )
-from agrislam.sources.rosbag import BagReport, BagSourceConfig, open_bag_source
+from agrislam.sources.bag_config import BagSourceConfig
+from agrislam.sources.bag_report import BagReport
+from agrislam.sources.rosbag import BagSource
 
 CROPS = AgrislamConfig.model_validate({"schema": "crops_weeds"})
 Write = Callable[[str, str, Any, float], None]
@@ -65,8 +68,8 @@ def odom(make: MessageFactory, t: float, x: float, y: float, yaw: float, cov3: A
 def read(
     path: Path, config: AgrislamConfig | None = None, **bag_cfg: Any
 ) -> tuple[list[Record], BagReport]:
-    records, report = open_bag_source(path, config, BagSourceConfig(**bag_cfg))
-    return list(records), report
+    source = BagSource(path, config, BagSourceConfig(**bag_cfg))
+    return list(source.records()), source.report
 
 
 def kinds(report: BagReport) -> list[tuple[str, str | None, float | None]]:
@@ -410,6 +413,6 @@ def test_a_bag_without_the_expected_topics(tmp_path: Path) -> None:
 def test_not_a_bag(tmp_path: Path) -> None:
     (tmp_path / "x.mcap").write_bytes(b"not an mcap file at all")
     with pytest.raises(ValueError, match="not a readable ROS bag"):
-        list(open_bag_source(tmp_path / "x.mcap")[0])
+        list(BagSource(tmp_path / "x.mcap").records())
     with pytest.raises(FileNotFoundError, match="nothere"):
-        list(open_bag_source(tmp_path / "nothere.mcap")[0])
+        list(BagSource(tmp_path / "nothere.mcap").records())

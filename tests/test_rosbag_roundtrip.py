@@ -4,13 +4,14 @@ back into the same records."""
 from __future__ import annotations
 
 import math
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pytest
 
-from agrislam.config import FieldSchema
+from agrislam.config import AgrislamConfig, FieldSchema
 from agrislam.perception.label_map import LabelMap
 from agrislam.records import (
     ContinuousMeasurement,
@@ -25,8 +26,19 @@ from agrislam.records import (
 )
 from agrislam.sim.config import SimConfig
 from agrislam.sim.simulator import Simulator
-from agrislam.sources.jsonl import record_to_json
-from agrislam.sources.rosbag import BagSourceConfig, open_bag_source, write_survey_bag
+from agrislam.sinks.jsonl import record_to_json
+from agrislam.sinks.rosbag import write_survey_bag
+from agrislam.sources.bag_config import BagSourceConfig
+from agrislam.sources.bag_report import BagReport
+from agrislam.sources.rosbag import BagSource
+
+
+def open_bag(
+    path: Path, config: AgrislamConfig | None = None, bag: BagSourceConfig | None = None
+) -> tuple[Iterator[Record], BagReport]:
+    """The records of a bag and the report that fills as they are read."""
+    source = BagSource(path, config, bag)
+    return source.records(), source.report
 
 
 def simulated(**detector: Any) -> list[Record]:
@@ -84,7 +96,7 @@ def test_simulated_survey_round_trip(
     n = write_survey_bag(pose_survey, path, storage)  # type: ignore[arg-type]
     assert n == len(pose_survey)
     assert path.is_file() if name.endswith(".mcap") else (path / "metadata.yaml").is_file()
-    records, report = open_bag_source(
+    records, report = open_bag(
         path, bag=BagSourceConfig(split_labels=False, detection_geometry="range_bearing")
     )
     got = list(records)
@@ -104,7 +116,7 @@ def test_delta_odometry_and_continuous_attributes_round_trip(tmp_path: Path) -> 
         for m in d.attributes.values()
     )
     write_survey_bag(want, tmp_path / "delta.mcap")
-    records, report = open_bag_source(
+    records, report = open_bag(
         tmp_path / "delta.mcap", bag=BagSourceConfig(odometry_form="delta")
     )
     assert_same_records(list(records), want)
@@ -139,7 +151,7 @@ def test_edge_cases_round_trip(tmp_path: Path) -> None:
         Odometry(1.25, "r1", pose=np.array([0.4, 0.02, 0.1]), cov=np.diag([1e-4, 2e-4, 3e-6])),
     ]
     write_survey_bag(want, tmp_path / "edge", "sqlite3")
-    records, _ = open_bag_source(tmp_path / "edge", bag=BagSourceConfig(split_labels=False))
+    records, _ = open_bag(tmp_path / "edge", bag=BagSourceConfig(split_labels=False))
     assert_same_records(list(records), want)
 
 
@@ -147,7 +159,7 @@ def test_labels_are_split_by_the_schema_the_bag_carries(
     tmp_path: Path, pose_survey: list[Record]
 ) -> None:
     write_survey_bag(pose_survey, tmp_path / "labels.mcap")
-    records, report = open_bag_source(
+    records, report = open_bag(
         tmp_path / "labels.mcap", bag=BagSourceConfig(detection_geometry="range_bearing")
     )
     got = list(records)

@@ -6,7 +6,8 @@ import pytest
 from agrislam.records import Detections, Meta, Odometry, TruthObject, TruthPose
 from agrislam.sim.config import SimConfig
 from agrislam.sim.odometry import integrate
-from agrislam.sim.simulator import Simulator, record_simulation
+from agrislam.sim.simulator import Simulator
+from agrislam.sinks.jsonl import write_log
 from agrislam.sources.jsonl import read_log
 from agrislam.sources.sync import synchronise
 
@@ -80,7 +81,7 @@ def test_pose_odometry_is_the_same_motion():
 def test_deterministic_per_seed(tmp_path):
     paths = [tmp_path / f"{k}.jsonl" for k in range(3)]
     for path, seed in zip(paths, (5, 5, 6), strict=True):
-        record_simulation(SimConfig.model_validate({**SMALL, "seed": seed}), path)
+        write_log(Simulator(SimConfig.model_validate({**SMALL, "seed": seed})).records(), path)
     assert paths[0].read_bytes() == paths[1].read_bytes()
     assert paths[0].read_bytes() != paths[2].read_bytes()
 
@@ -90,7 +91,7 @@ def test_recorded_log_reads_back_strictly(tmp_path):
     cfg = SimConfig.model_validate(
         {**SMALL, "schema": "crops_weeds", "field": {**SMALL["field"], "weed_fraction": 0.1}}
     )
-    n = record_simulation(cfg, path)
+    n = write_log(Simulator(cfg).records(), path)
     reader = read_log(path)
     back = list(reader)
     assert len(back) == n == reader.report.records and not reader.report.skipped

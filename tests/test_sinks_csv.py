@@ -121,6 +121,47 @@ def test_value_names_with_commas_and_quotes_survive(tmp_path):
     assert rows[0]['size_tiny, "x"'] == "0.8"
 
 
+AWKWARD = ["with, comma", 'say "hi"', "two\nlines", "carriage\rreturn", "crlf\r\nend", " padded "]
+
+
+def test_awkward_value_and_robot_names_read_back_with_the_csv_reader(sample_snapshot, tmp_path):
+    """Commas, quotes and every kind of line break in names come back as written."""
+    n = len(AWKWARD)
+    schema = FieldSchema.model_validate(
+        {"attributes": {"kind": {"kind": "discrete", "values": AWKWARD}}}
+    )
+    objects = dataclasses.replace(
+        two_plants(None).objects,
+        ids=np.arange(n),
+        xy=np.zeros((n, 2)),
+        cov=np.tile(np.eye(2), (n, 1, 1)),
+        n_meas=np.ones(n, dtype=int),
+        interest=np.full(n, 0.5),
+        row=np.full(n, -1),
+        discrete={"kind": 0.9 * np.eye(n) + 0.1 / n},
+        continuous={},
+    )
+    path = write_objects_csv(MapSnapshot(schema, objects, {}, {}), tmp_path / "o.csv")
+    with open(path, newline="", encoding="utf-8") as f:
+        header, *rows = list(csv.reader(f))
+    assert header[9:11] == ["kind", "kind_p"] and header[11:] == [f"kind_{v}" for v in AWKWARD]
+    assert [r[9] for r in rows] == AWKWARD
+    assert all(len(r) == len(header) for r in rows)
+
+    robot = sample_snapshot.trajectories["spot"]
+    odd = {v: dataclasses.replace(robot, robot=v) for v in AWKWARD}
+    snap = dataclasses.replace(sample_snapshot, trajectories=odd, dead_reckoning={})
+    _, rows = read_csv(write_trajectory_csv(snap, tmp_path / "t.csv"))
+    assert [r["robot"] for r in rows[:: len(robot.t)]] == AWKWARD
+
+
+def test_plain_rows_are_written_unquoted_with_nine_significant_digits(tmp_path):
+    path = write_objects_csv(two_plants(SIZE_SCHEMA), tmp_path / "o.csv")
+    lines = path.read_bytes().split(b"\n")
+    assert lines[1] == b"7,1.25,-2.5,0.04,0.01,0.09,4,0.3,active,medium,0.7,0.2,0.7,0.1,0.31,0.0025"
+    assert lines[-1] == b"" and b"\r" not in path.read_bytes()
+
+
 def test_without_schema_values_are_numbered(tmp_path):
     header, rows = read_csv(write_objects_csv(two_plants(None), tmp_path / "o.csv"))
     assert header[9:14] == ["size", "size_p", "size_0", "size_1", "size_2"]

@@ -13,13 +13,8 @@ from matplotlib.colors import to_rgba
 from matplotlib.image import imread
 
 from agrislam.config import COLOURS, FieldSchema
-from agrislam.sinks.report import (
-    _headline,
-    _marker_size,
-    value_colours,
-    write_attribute_maps,
-    write_report,
-)
+from agrislam.sinks.readouts import value_colours
+from agrislam.sinks.report import _headline, _marker_size, write_attribute_maps, write_report
 from agrislam.snapshot import MapSnapshot, ObjectMap
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"

@@ -1,4 +1,4 @@
-"""The `agrislam` command line: pick a source, run the world model, write the outputs."""
+"""The `agrislam` command line: open a source, run the world model, write the outputs."""
 
 from __future__ import annotations
 
@@ -9,6 +9,7 @@ from typing import Annotated
 
 import typer
 from rich.console import Console
+from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
@@ -16,6 +17,7 @@ from agrislam import __version__
 from agrislam.config import AgrislamConfig, load_mapping
 from agrislam.pipeline import RunResult, run_survey
 from agrislam.records import Record
+from agrislam.sources import SourceError, open_source
 from agrislam.world import WorldModel
 
 app = typer.Typer(
@@ -48,6 +50,7 @@ ConfigOption = Annotated[
     typer.Option("--config", "-c", exists=True, dir_okay=False, help="YAML/TOML/JSON config."),
 ]
 OutOption = Annotated[Path, typer.Option("--out", "-o", help="Output folder.")]
+SOURCE_SECTIONS = ("bag", "sim")  # config file sections for the source, not the world model
 
 
 @app.command()
@@ -64,31 +67,19 @@ def simulate(
     config: ConfigOption = None,
 ) -> None:
     """Simulate a field survey and map it (default: the paper's 400-plant simulation)."""
-    from agrislam.sim.config import SimConfig
-    from agrislam.sim.simulator import Simulator
+    from agrislam.sources.simulated import simulation_uri
 
-    data = load_mapping(config) if config else {}
-    sim_data = data.pop("sim", {})
-    sim_cfg = SimConfig.model_validate(sim_data)
-    sim_cfg = sim_cfg.model_copy(update={"seed": seed, "schema_": preset})
-    sim_cfg.field.n_plants = plants
-    cfg = AgrislamConfig.model_validate(data)
-    simulator = Simulator(sim_cfg)
-    records = list(simulator.records())
-    if record is not None:
-        _record(records, record)
-        console.print(f"recorded the survey to [bold]{record}[/]")
-    result = _run(records, cfg, out, f"simulating {plants} plants, seed {seed}")
-    _summary(result, out)
+    _survey(simulation_uri(plants=plants, seed=seed, preset=preset), config, out, record=record)
 
 
 @app.command()
 def run(
     log: Annotated[
-        Path,
+        str,
         typer.Argument(
-            exists=True,
-            help="Survey log (.jsonl), rosbag2 folder (sqlite3/MCAP), .mcap file or ROS 1 .bag.",
+            metavar="SOURCE",
+            help="Survey log (.jsonl, .jsonl.gz), rosbag2 folder (sqlite3/MCAP), .mcap file, "
+            "ROS 1 .bag, or a simulation (sim:?plants=400&seed=1&preset=colour_size).",
         ),
     ],
     config: ConfigOption = None,
@@ -97,31 +88,41 @@ def run(
         bool, typer.Option("--strict/--lenient", help="Stop at the first bad line, or skip it.")
     ] = False,
 ) -> None:
-    """Map a recorded survey."""
+    """Map a recorded (or simulated) survey."""
+    _survey(log, config, out, strict=strict)
+
+
+def _survey(
+    path_or_uri: str,
+    config: Path | None,
+    out: Path,
+    *,
+    strict: bool = False,
+    record: Path | None = None,
+) -> None:
+    """Open the source, run the survey, print the source's report and the run's summary.
+    The config file's ``bag:`` and ``sim:`` sections go to the source that reads them."""
     data = load_mapping(config) if config else {}
-    bag_data = data.pop("bag", None)
+    sections = {name: data.pop(name, None) for name in SOURCE_SECTIONS}
     cfg = AgrislamConfig.model_validate(data)
-    if _is_bag(log):
-        from agrislam.sources.rosbag import BagSourceConfig, open_bag_source
-
-        records, report = open_bag_source(log, cfg, BagSourceConfig.model_validate(bag_data or {}))
-        result = _run(records, cfg, out, f"mapping {log.name}")
-    else:
-        from agrislam.sources.jsonl import LogError, read_log
-
-        records = read_log(log, strict=strict)
-        try:
-            result = _run(records, cfg, out, f"mapping {log.name}")
-        except LogError as err:
-            console.print(f"[red]{err}[/] (use --lenient to skip bad lines)")
-            raise typer.Exit(1) from None
-        report = records.report
-    console.print(report.summary())
+    try:
+        source = open_source(path_or_uri, cfg, strict=strict, **sections)
+    except (FileNotFoundError, ValueError) as err:
+        console.print(f"[red]{escape(str(err))}[/]", soft_wrap=True)
+        raise typer.Exit(2) from None
+    try:
+        records: Iterable[Record] = source.records()
+        if record is not None:
+            records = list(records)
+            _record(records, record)
+            console.print(f"recorded the survey to [bold]{escape(str(record))}[/]")
+        result = _run(records, cfg, out, f"mapping {source.name}")
+    except SourceError as err:
+        hint = " (use --lenient to skip bad lines)"
+        console.print(f"[red]{escape(str(err))}[/]{hint}", soft_wrap=True)
+        raise typer.Exit(1) from None
+    console.print(source.report.summary(), markup=False, soft_wrap=True)
     _summary(result, out)
-
-
-def _is_bag(path: Path) -> bool:
-    return path.is_dir() or path.suffix in (".mcap", ".bag", ".db3")
 
 
 @app.command("config")
@@ -155,11 +156,11 @@ def _run(records: Iterable[Record], cfg: AgrislamConfig, out: Path, what: str) -
 
 def _record(records: list[Record], path: Path) -> None:
     if path.suffix == ".jsonl":
-        from agrislam.sources.jsonl import write_log
+        from agrislam.sinks.jsonl import write_log
 
         write_log(records, path)
     else:
-        from agrislam.sources.rosbag import write_survey_bag
+        from agrislam.sinks.rosbag import write_survey_bag
 
         write_survey_bag(records, path)
 

@@ -66,3 +66,14 @@ def pose_uncertainty_at(pose: np.ndarray, pose_cov: np.ndarray, xy: np.ndarray) 
     jac[:, 0, 0] = jac[:, 1, 1] = 1.0
     jac[:, :, 2] = d_theta
     return jac @ pose_cov @ jac.transpose(0, 2, 1)
+
+
+def quaternion_from_yaw(yaw: float) -> tuple[float, float, float, float]:
+    """(x, y, z, w) of a rotation by `yaw` about z, as geometry_msgs and Foxglove want it."""
+    return (0.0, 0.0, float(np.sin(0.5 * yaw)), float(np.cos(0.5 * yaw)))
+
+
+def yaw_from_quaternion(q: tuple[float, ...] | np.ndarray) -> float:
+    """Heading (rotation about z) of a quaternion (x, y, z, w)."""
+    x, y, z, w = (float(v) for v in q)
+    return float(np.arctan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z)))

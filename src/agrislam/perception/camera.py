@@ -34,17 +34,6 @@ def rotation_from_quaternion(q: Sequence[float]) -> np.ndarray:
     )
 
 
-def quaternion_from_yaw(yaw: float) -> tuple[float, float, float, float]:
-    """(x, y, z, w) of a rotation by `yaw` about z."""
-    return (0.0, 0.0, float(np.sin(0.5 * yaw)), float(np.cos(0.5 * yaw)))
-
-
-def yaw_from_quaternion(q: Sequence[float]) -> float:
-    """Heading (rotation about z) of a quaternion (x, y, z, w)."""
-    x, y, z, w = (float(v) for v in q)
-    return float(np.arctan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z)))
-
-
 def rigid_transform(rotation: np.ndarray, translation: Sequence[float]) -> np.ndarray:
     """4x4 homogeneous transform from a 3x3 rotation and a translation."""
     T = np.eye(4)

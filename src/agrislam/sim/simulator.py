@@ -5,7 +5,6 @@ from __future__ import annotations
 
 from collections.abc import Iterator
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
@@ -25,7 +24,6 @@ from agrislam.sim.detector import Detector
 from agrislam.sim.field import Field, make_field
 from agrislam.sim.odometry import OdometryTrack, integrate, noisy_odometry
 from agrislam.sim.path import SurveyPath, frame_times, survey_path
-from agrislam.sources.jsonl import write_log
 
 # record kinds at one time stamp, in the order they are written
 _TRUTH, _ODOM, _FRAME = 0, 1, 2
@@ -178,8 +176,3 @@ class Simulator:
         if self.cfg.odometry.kind == "pose":
             return Odometry(t=float(sv.t_odom[i]), robot=sv.name, pose=pose, cov=cov)
         return Odometry(t=float(sv.t_odom[i]), robot=sv.name, delta=delta, cov=cov)
-
-
-def record_simulation(cfg: SimConfig | None, path: str | Path) -> int:
-    """Write a simulated survey with its truth as a JSONL survey log; returns the line count."""
-    return write_log(Simulator(cfg).records(), path)

@@ -1,5 +1,10 @@
-"""Outputs of a run (DESIGN.md "Outputs of a run"): each sink takes a `MapSnapshot` and
-writes one file; none of them is imported by the core."""
+"""Outputs of a run (DESIGN.md "Outputs of a run"): each sink takes a `MapSnapshot` (or the
+survey's records) and writes one file; none of them is imported by the core.
+
+A sink module never imports another sink module: what several of them read sits in the
+helper modules `columns` (object and trajectory tables), `readouts` (belief read-outs:
+most probable value, sureness, colours) and `scene` (how a plant is drawn in 3D), which
+write nothing."""
 
 from agrislam.sinks.csv import write_objects_csv, write_trajectory_csv
 from agrislam.sinks.geojson import map_to_lonlat, write_geojson

@@ -3,7 +3,7 @@ extra: ``pip install agrislam[foxglove]``), which its 3D panel shows without any
 message definitions.
 
 Topics (frame ``map``): ``/agrislam/plants`` (SceneUpdate: an entity per object, id =
-object id, a sphere coloured by the chosen attribute as in `ros_map.plant_style`, its
+object id, a sphere coloured by the chosen attribute as in `scene.plant_style`, its
 2-sigma position ellipse, and every attribute's distribution as entity metadata, which
 Foxglove lists when a plant is clicked), ``/agrislam/rows`` (SceneUpdate, the row lines),
 ``/agrislam/interest`` (Grid of the interest surface, sec. 2.7, value field ``interest``),
@@ -17,14 +17,9 @@ from typing import Any
 
 import numpy as np
 
-from agrislam.perception.camera import quaternion_from_yaw
-from agrislam.sinks.csv import discrete_columns
-from agrislam.sinks.ros_map import (
-    covariance_ellipses,
-    plant_style,
-    row_segments,
-    snapshot_time,
-)
+from agrislam.geometry.se2 import quaternion_from_yaw
+from agrislam.sinks.readouts import discrete_columns
+from agrislam.sinks.scene import covariance_ellipses, plant_style, row_segments, snapshot_time
 from agrislam.snapshot import MapSnapshot
 
 FRAME = "map"
@@ -96,7 +91,7 @@ def write_foxglove_mcap(
     objects = snapshot.objects
     style = plant_style(snapshot, attribute)
     xy = np.asarray(objects.xy, dtype=float).reshape(-1, 2)
-    size = diameter * (0.5 + 0.5 * style.sureness)
+    size = style.sizes(diameter)
     axes, heading = covariance_ellipses(objects.cov) if len(objects) else (np.empty((0, 2)), [])
     metadata = entity_metadata(snapshot)
     entities = []

@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from agrislam.records import Anchor
-from agrislam.sinks.csv import object_columns
+from agrislam.sinks.columns import object_columns
 from agrislam.snapshot import MapSnapshot
 
 WGS84_A = 6_378_137.0  # semi-major axis, m

@@ -18,17 +18,19 @@ from matplotlib import colormaps
 from matplotlib.axes import Axes
 from matplotlib.cm import ScalarMappable
 from matplotlib.collections import LineCollection
-from matplotlib.colors import Normalize, is_color_like, to_rgba_array
+from matplotlib.colors import Normalize
 from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 from matplotlib.patches import Patch
 
-from agrislam.sinks.csv import (
+from agrislam.sinks.readouts import (
     continuous_scale,
     continuous_sureness,
     discrete_columns,
     discrete_sureness,
     most_probable,
+    opacity,
+    value_colours,
 )
 from agrislam.snapshot import MapSnapshot, Trajectory
 
@@ -43,14 +45,6 @@ MAX_STEP_BINS = 600
 ROW_OVERHANG_M = 0.3  # a row line runs this far past its first and last plant
 INTEREST_CMAP = "YlOrRd"
 HEADLINE_SEPARATOR = "   ·   "
-MIN_OPACITY = 0.15  # a belief that knows nothing is still visible
-# colours that say what the value is, for value names a farmer will recognise
-KNOWN_VALUE_COLOURS = {
-    "healthy": "tab:green",
-    "diseased": "tab:red",
-    "crop": "tab:green",
-    "weed": "tab:purple",
-}
 SOURCE_STYLE = {  # trajectory kind -> line style
     "truth": {"color": "black", "lw": 2.2, "alpha": 0.45, "ls": "-"},
     "dead reckoning": {"color": "tab:red", "lw": 1.2, "alpha": 0.9, "ls": "--"},
@@ -390,24 +384,6 @@ def _draw_discrete(ax: Axes, snapshot: MapSnapshot, name: str, xy: np.ndarray, s
         title_fontsize=9,
         frameon=False,
     )
-
-
-def opacity(sureness: np.ndarray) -> np.ndarray:
-    """Faint (MIN_OPACITY) for a belief that knows nothing, solid for a certain one."""
-    return MIN_OPACITY + (1.0 - MIN_OPACITY) * sureness
-
-
-def value_colours(name: str, values: list[str], snapshot: MapSnapshot) -> np.ndarray:
-    """(n, 4) RGBA per value: the colour itself for a colour attribute, green/red for
-    healthy/diseased etc., light to dark green for ordered (growing) sizes, else tab10."""
-    spec = snapshot.schema.discrete.get(name) if snapshot.schema is not None else None
-    if "colo" in name.lower() and all(is_color_like(v) for v in values):
-        return to_rgba_array(values)
-    if all(v in KNOWN_VALUE_COLOURS for v in values):
-        return to_rgba_array([KNOWN_VALUE_COLOURS[v] for v in values])
-    if (spec is not None and spec.time_model is not None) or name.lower() == "size":
-        return colormaps["YlGn"](np.linspace(0.3, 0.95, len(values)))
-    return colormaps["tab10"](np.arange(len(values)) % 10)
 
 
 def _draw_continuous(

@@ -14,112 +14,24 @@ object, id = object id; ``uncertainty``: the 2-sigma position ellipse; ``labels`
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from matplotlib import colormaps
 
-from agrislam.perception.camera import quaternion_from_yaw
-from agrislam.sinks.csv import (
-    continuous_scale,
-    continuous_sureness,
-    discrete_columns,
-    discrete_sureness,
-    most_probable,
-)
-from agrislam.sinks.report import opacity, value_colours
-from agrislam.snapshot import MapSnapshot, Trajectory
-from agrislam.sources.ros_messages import (
+from agrislam.geometry.se2 import quaternion_from_yaw
+from agrislam.ros.messages import (
     MARKER_ARRAY,
     PATH,
     MessageFactory,
     open_ros2_writer,
     seconds_to_ns,
 )
+from agrislam.sinks.scene import covariance_ellipses, plant_style, row_segments, snapshot_time
+from agrislam.snapshot import MapSnapshot, Trajectory
 
 PLANTS_TOPIC = "/agrislam/plants"
-ELLIPSE_SIGMAS = 2.0
 MARKER = {"SPHERE": 2, "CYLINDER": 3, "LINE_LIST": 5, "TEXT_VIEW_FACING": 9}
 ACTION = {"ADD": 0, "DELETEALL": 3}
-
-
-@dataclass(frozen=True, slots=True)
-class PlantStyle:
-    """How each object is drawn: RGBA (k, 4) with opacity from `sureness` (k,) in [0, 1],
-    and a label per object ("size: big 0.82")."""
-
-    attribute: str | None
-    rgba: np.ndarray
-    sureness: np.ndarray
-    labels: list[str]
-
-
-def default_attribute(snapshot: MapSnapshot) -> str | None:
-    """The first discrete attribute of the map, else the first continuous one."""
-    objects = snapshot.objects
-    return next(iter(objects.discrete), next(iter(objects.continuous), None))
-
-
-def plant_style(snapshot: MapSnapshot, attribute: str | None = None) -> PlantStyle:
-    """Colour by the attribute's most probable value (discrete) or mean (continuous, viridis
-    over the schema's range); without attributes, by the interest heuristic h (sec. 2.7)."""
-    objects = snapshot.objects
-    name = attribute if attribute is not None else default_attribute(snapshot)
-    k = len(objects)
-    if name is None:
-        h = np.asarray(objects.interest, dtype=float)
-        rgba = colormaps["viridis"](np.clip(h, 0.0, 1.0))
-        return PlantStyle(None, rgba, np.ones(k), [f"h {v:.2f}" for v in h])
-    if name in objects.discrete:
-        values, belief = discrete_columns(snapshot)[name]
-        top, p = most_probable(belief)
-        sureness = discrete_sureness(p, len(values))
-        rgba = value_colours(name, values, snapshot)[top] if k else np.empty((0, 4))
-        labels = [f"{name}: {values[j]} {q:.2f}" for j, q in zip(top, p, strict=True)]
-    elif name in objects.continuous:
-        mean, var = (np.asarray(a, dtype=float) for a in objects.continuous[name])
-        lo, hi, prior_var = continuous_scale(snapshot, name, mean)
-        rgba = colormaps["viridis"](np.clip((mean - lo) / ((hi - lo) or 1.0), 0.0, 1.0))
-        sureness = continuous_sureness(var, prior_var)
-        labels = [f"{name}: {m:.3g} ± {np.sqrt(v):.2g}" for m, v in zip(mean, var, strict=True)]
-    else:
-        known = [*objects.discrete, *objects.continuous]
-        raise ValueError(f"attribute {name!r} is not in the map (it has {known})")
-    rgba = np.array(rgba, dtype=float).reshape(k, 4)
-    rgba[:, 3] = opacity(sureness)
-    return PlantStyle(name, rgba, sureness, labels)
-
-
-def covariance_ellipses(
-    cov: np.ndarray, sigmas: float = ELLIPSE_SIGMAS
-) -> tuple[np.ndarray, np.ndarray]:
-    """Full axis lengths (k, 2), major first, and the major axis heading (k,) of the
-    `sigmas` ellipses of 2x2 covariances (k, 2, 2)."""
-    w, V = np.linalg.eigh(np.asarray(cov, dtype=float).reshape(-1, 2, 2))
-    axes = 2.0 * sigmas * np.sqrt(np.clip(w[:, ::-1], 0.0, None))
-    heading = np.arctan2(V[:, 1, 1], V[:, 0, 1])
-    return axes, heading
-
-
-def row_segments(snapshot: MapSnapshot) -> np.ndarray:
-    """(r, 2, 2) end points of the fitted rows over the along-row extent of the objects."""
-    rows = snapshot.rows
-    if rows is None or len(rows.offsets) == 0:
-        return np.empty((0, 2, 2))
-    d = np.array([np.cos(rows.angle), np.sin(rows.angle)])
-    n = np.array([-d[1], d[0]])  # snapshot.RowLines: row k is {p : n . p = offsets[k]}
-    xy = np.asarray(snapshot.objects.xy, dtype=float).reshape(-1, 2)
-    along = xy @ d if len(xy) else np.zeros(1)
-    lo, hi = along.min() - 0.5, along.max() + 0.5
-    base = np.asarray(rows.offsets, dtype=float)[:, None] * n
-    return np.stack([base + lo * d, base + hi * d], axis=1)
-
-
-def snapshot_time(snapshot: MapSnapshot) -> float:
-    """The latest trajectory time of the snapshot (0 without trajectories)."""
-    ends = [float(tr.t[-1]) for tr in snapshot.trajectories.values() if len(tr.t)]
-    return max(ends, default=0.0)
 
 
 class _MarkerBuilder:
@@ -189,7 +101,7 @@ def plant_markers(
     build = _MarkerBuilder(make, t, frame)
     markers = [build.marker("", 0, "SPHERE", action="DELETEALL")]  # replace an older map
     xy = np.asarray(objects.xy, dtype=float).reshape(-1, 2).tolist()
-    size = (diameter * (0.5 + 0.5 * style.sureness)).tolist()
+    size = style.sizes(diameter).tolist()
     rgba = style.rgba.tolist()
     axes, heading = covariance_ellipses(objects.cov) if len(objects) else (np.empty((0, 2)), [])
     for i, ident in enumerate(np.asarray(objects.ids).tolist()):

@@ -22,7 +22,7 @@ import numpy as np
 from agrislam.config import FieldSchema
 from agrislam.records import Anchor
 from agrislam.semantics.heuristic import InterestSurface
-from agrislam.sinks.csv import discrete_columns
+from agrislam.sinks.readouts import discrete_columns
 from agrislam.snapshot import MapSnapshot, ObjectMap, RowLines, Trajectory
 
 FORMAT_NAME = "agrislam-map"

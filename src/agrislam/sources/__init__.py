@@ -1,0 +1,78 @@
+"""Inputs of a survey, one shape for all: `open_source(path_or_uri, config)` picks the reader
+by the path's suffix or the URI's scheme and returns a `Source`, whose `records()` the
+pipeline runs and whose `report` says what was read.
+
+- ``survey.jsonl``, ``survey.jsonl.gz``: `sources.jsonl`, the survey log (spec/log-format.md);
+- a rosbag2 folder, ``.mcap``, ``.db3``, a ROS 1 ``.bag``: `sources.rosbag` (its
+  Detection2D frames through the RGB-D front end: `sources.rgbd`);
+- ``sim:?plants=400&seed=1&preset=colour_size``: `sources.simulated`, the field simulator.
+
+Readers are imported when first opened, so reading a log never loads rosbags."""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Mapping
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from agrislam.sources.base import Source, SourceError, SourceReport
+
+if TYPE_CHECKING:
+    from agrislam.config import AgrislamConfig
+    from agrislam.sim.config import SimConfig
+    from agrislam.sources.bag_config import BagSourceConfig
+
+__all__ = ["SUPPORTED", "Source", "SourceError", "SourceReport", "open_source"]
+
+LOG_SUFFIXES = (".jsonl", ".jsonl.gz")
+BAG_SUFFIXES = (".mcap", ".db3", ".bag")
+SUPPORTED = (
+    "a survey log (.jsonl, .jsonl.gz), a ROS bag (a rosbag2 folder, .mcap, .db3, a ROS 1 "
+    ".bag) or the simulator (sim:, e.g. sim:?plants=400&seed=1&preset=colour_size)"
+)
+_SCHEME = re.compile(r"^(?P<scheme>[A-Za-z][A-Za-z0-9+.-]+):")  # 2+ letters: not C:\
+
+
+def open_source(
+    path_or_uri: str | Path,
+    config: AgrislamConfig | None = None,
+    *,
+    strict: bool = False,
+    bag: BagSourceConfig | Mapping[str, Any] | None = None,
+    sim: SimConfig | Mapping[str, Any] | None = None,
+) -> Source:
+    """The source of a survey log, a ROS bag or a ``sim:`` URI.
+
+    `config`: the run's configuration (a bag's schema, label map and sensor defaults).
+    `strict`: a survey log stops at its first bad line (`SourceError`) instead of skipping
+    it; a bag reports bad input and reads on either way. `bag`: the bag's topics (a
+    config file's ``bag:`` section); `sim`: the simulator's settings under the URI's
+    parameters (its ``sim:`` section). Each applies to its own kind of source only.
+    ValueError for an input of no supported kind, FileNotFoundError for a missing path."""
+    if not isinstance(path_or_uri, Path) and (match := _SCHEME.match(path_or_uri)):
+        if match["scheme"].lower() != "sim":
+            raise ValueError(
+                f"{path_or_uri!r}: unknown source scheme {match['scheme']!r}; supported: "
+                f"{SUPPORTED}"
+            )
+        from agrislam.sources.simulated import SimulatedSource, simulation_config
+
+        return SimulatedSource(simulation_config(path_or_uri, sim))
+    path = Path(path_or_uri)
+    name = path.name.lower()
+    is_log, is_bag = name.endswith(LOG_SUFFIXES), path.is_dir() or name.endswith(BAG_SUFFIXES)
+    if not path.exists():
+        raise FileNotFoundError(f"{path}: no such file or folder")
+    if is_log:
+        from agrislam.sources.jsonl import read_log
+
+        return read_log(path, strict=strict)
+    if is_bag:
+        from agrislam.sources.bag_config import BagSourceConfig
+        from agrislam.sources.rosbag import BagSource
+
+        if not isinstance(bag, BagSourceConfig):
+            bag = BagSourceConfig.model_validate(bag or {})
+        return BagSource(path, config, bag)
+    raise ValueError(f"{path}: not a kind of input agrislam reads; supported: {SUPPORTED}")

@@ -1,15 +1,15 @@
-"""The survey log, JSON Lines version 1 (shared/spec/log-format.md): a streaming reader that
-checks every line and a writer. The reader never loads the file whole; a bad line either
-stops it (strict) with the line number and the reason, or is skipped and counted (lenient)."""
+"""The survey log, JSON Lines version 1 (shared/spec/log-format.md), read as a source: a
+streaming reader that checks every line (`sinks.jsonl` writes the log). It never loads the
+file whole; a bad line either stops it (strict) with the line number and the reason, or is
+skipped and counted (lenient)."""
 
 from __future__ import annotations
 
 import gzip
-import io
 import json
 import math
 from collections import Counter
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any
@@ -32,6 +32,7 @@ from agrislam.records import (
     TruthObject,
     TruthPose,
 )
+from agrislam.sources.base import SourceError
 
 VERSION = 1
 # the start-pose std a robot gets when meta gives a start_pose without start_sigma (m, m, rad)
@@ -56,7 +57,7 @@ REASONS = {
 }
 
 
-class LogError(ValueError):
+class LogError(SourceError):
     """A bad line: where it is and why."""
 
     def __init__(self, line: int, reason: str, message: str, source: str = "") -> None:
@@ -417,11 +418,11 @@ def _open(path: Path, mode: str) -> IO[bytes]:
 
 
 class LogReader:
-    """Iterate the records of a survey log, line by line.
+    """A survey log as a source: its records, line by line (`records()` or iterating it).
 
     strict: raise `LogError` at the first bad line (records before it have been yielded);
-    otherwise skip bad lines and count them in `report`. `schema` validates attributes when
-    the log's meta has none."""
+    otherwise skip bad lines and count them in `report` (that of the latest pass). `schema`
+    validates attributes when the log's meta has none."""
 
     def __init__(
         self,
@@ -436,7 +437,15 @@ class LogReader:
         name = str(source) if isinstance(source, (str, Path)) else getattr(source, "name", "")
         self.report = ReadReport(source=str(name))
 
+    @property
+    def name(self) -> str:
+        return self.report.source
+
+    def records(self) -> Iterator[Record]:
+        return iter(self)
+
     def __iter__(self) -> Iterator[Record]:
+        self.report = ReadReport(source=self.report.source)
         if isinstance(self.source, (str, Path)):
             with _open(Path(self.source), "r") as f:
                 yield from self._lines(f)
@@ -482,120 +491,3 @@ def read_log(
 ) -> LogReader:
     """A streaming reader of a survey log (`.jsonl`, or `.jsonl.gz`)."""
     return LogReader(source, strict=strict, schema=schema)
-
-
-# ------------------------------------------------------------------------------ writing
-
-
-def _list(a: np.ndarray) -> list:
-    return np.asarray(a, dtype=float).tolist()
-
-
-def _measurement_json(m: Measurement) -> dict[str, Any]:
-    if isinstance(m, DiscreteMeasurement):
-        return {"value": m.value, "p": float(m.p)}
-    return {"value": float(m.value), "var": float(m.var)}
-
-
-def _detection_json(d: Detection) -> dict[str, Any]:
-    out: dict[str, Any] = {}
-    if d.xy is not None:
-        out["xy"] = _list(d.xy)
-        if d.cov is not None:
-            out["cov"] = _list(d.cov)
-    else:
-        out["range"], out["bearing"] = float(d.range), float(d.bearing)  # type: ignore[arg-type]
-        for key in ("sigma_range", "sigma_bearing"):
-            if getattr(d, key) is not None:
-                out[key] = float(getattr(d, key))
-    if d.attributes:
-        out["attributes"] = {n: _measurement_json(m) for n, m in d.attributes.items()}
-    if d.label is not None:
-        out["label"] = d.label
-        if d.label_p is not None:
-            out["p"] = float(d.label_p)
-    if d.truth_id is not None:
-        out["truth_id"] = d.truth_id
-    return out
-
-
-def record_to_json(rec: Record) -> dict[str, Any]:
-    """A record as the JSON object of its log line."""
-    if isinstance(rec, Odometry):
-        out: dict[str, Any] = {"type": "odom", "t": float(rec.t), "robot": rec.robot}
-        if rec.pose is not None:
-            out["pose"] = _list(rec.pose)
-        else:
-            out["delta"] = _list(rec.delta)  # type: ignore[arg-type]
-        if rec.cov is not None:
-            out["cov"] = _list(rec.cov)
-        return out
-    if isinstance(rec, Detections):
-        out = {"type": "detections", "t": float(rec.t), "robot": rec.robot}
-        if rec.sensor is not None:
-            out["sensor"] = rec.sensor
-        out["objects"] = [_detection_json(d) for d in rec.objects]
-        return out
-    if isinstance(rec, TruthPose):
-        return {
-            "type": "truth_pose",
-            "t": float(rec.t),
-            "robot": rec.robot,
-            "pose": _list(rec.pose),
-        }
-    if isinstance(rec, TruthObject):
-        attrs = {k: (v if isinstance(v, str) else float(v)) for k, v in rec.attributes.items()}
-        return {"type": "truth_object", "id": rec.id, "xy": _list(rec.xy), "attributes": attrs}
-    if isinstance(rec, Meta):
-        out = {"type": "meta", "version": rec.version}
-        if rec.schema is not None:
-            out["schema"] = rec.schema.model_dump(mode="json", exclude_none=True)
-        if rec.robots:
-            out["robots"] = {
-                n: {"start_pose": _list(r.pose), "start_sigma": _list(r.sigma)}
-                for n, r in rec.robots.items()
-            }
-        if rec.anchor is not None:
-            a = rec.anchor
-            out["anchor"] = {"lat": a.lat, "lon": a.lon, "h": a.h, "yaw_deg": a.yaw_deg}
-        if rec.field is not None:
-            f = rec.field
-            out["field"] = {
-                "row_spacing": f.row_spacing,
-                "min_plant_distance": f.min_plant_distance,
-                "row_angle_deg": f.row_angle_deg,
-            }
-        return out
-    raise TypeError(f"not a record: {rec!r}")
-
-
-class LogWriter:
-    """Write records as a survey log, one line each (`.gz` paths are compressed)."""
-
-    def __init__(self, path: str | Path) -> None:
-        self.path = Path(path)
-        self._raw = _open(self.path, "w")
-        self._f = io.TextIOWrapper(self._raw, encoding="utf-8", newline="\n")
-        self.lines = 0
-
-    def write(self, rec: Record) -> None:
-        self._f.write(json.dumps(record_to_json(rec), separators=(",", ":"), allow_nan=False))
-        self._f.write("\n")
-        self.lines += 1
-
-    def close(self) -> None:
-        self._f.close()
-
-    def __enter__(self) -> LogWriter:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
-
-
-def write_log(records: Iterable[Record], path: str | Path) -> int:
-    """Write every record to `path`; returns the number of lines written."""
-    with LogWriter(path) as w:
-        for rec in records:
-            w.write(rec)
-        return w.lines

@@ -1,6 +1,6 @@
-"""ROS bags in and out: a rosbag2 folder (sqlite3 or MCAP), a bare .mcap file, or a ROS 1
-.bag read as agrislam records (rosbags; no ROS installation needed), and a simulated survey
-written as a ROS 2 bag.
+"""ROS bags as a source: a rosbag2 folder (sqlite3 or MCAP), a bare .mcap file, or a ROS 1
+.bag read as agrislam records (rosbags; no ROS installation needed). `sinks.rosbag` writes
+a survey as a bag this reads back.
 
 What the reader takes (topics named in `BagSourceConfig` or found by type):
 
@@ -17,7 +17,7 @@ What the reader takes (topics named in `BagSourceConfig` or found by type):
   present; hypotheses as below.
 - ``vision_msgs/Detection2DArray`` plus an aligned depth ``sensor_msgs/Image`` and its
   ``CameraInfo`` (and optionally an instance image whose pixel value k marks detection
-  k - 1 of the array with the same stamp): projected by the RGB-D front end.
+  k - 1 of the array with the same stamp): projected by the RGB-D front end (`sources.rgbd`).
 - ``/agrislam/meta`` and ``/agrislam/truth`` (``std_msgs/String``): a survey log line each
   (shared/spec/log-format.md), as ``write_survey_bag`` records meta and ground truth.
 
@@ -28,7 +28,7 @@ ids (Noetic ``int64 id``) are named through ``class_names``. ``Detection3D.id`` 
 the record's ``truth_id``.
 
 Bad input never stops the reader: every problem becomes a `BagIssue` naming the topic and
-stamp in the returned `BagReport`, and the rest of the bag is read. Records are yielded in
+stamp in the source's `BagReport`, and the rest of the bag is read. Records are yielded in
 time order (header stamps; meta first), after the bag has been read through once: records
 are small, images are turned into detections as they stream past.
 """
@@ -37,45 +37,38 @@ from __future__ import annotations
 
 import dataclasses
 import io
-import json
 import math
 import re
-from collections import Counter, deque
 from collections.abc import Iterable, Iterator
-from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
 from rosbags.highlevel import AnyReader, AnyReaderError
 from rosbags.interfaces import MessageDefinitionFormat
 
 from agrislam.config import AgrislamConfig, FieldSchema
-from agrislam.geometry.se2 import between, compose
+from agrislam.geometry.se2 import between
 from agrislam.perception.camera import (
-    PinholeCamera,
-    quaternion_from_yaw,
     rigid_transform,
     rotation_from_quaternion,
 )
 from agrislam.perception.config import PerceptionConfig
-from agrislam.perception.detector import ImageDetection, RgbdDetector
 from agrislam.perception.label_map import LabelMap, UnknownLabelError
 from agrislam.records import (
-    ContinuousMeasurement,
     Detection,
     Detections,
-    DiscreteMeasurement,
-    Measurement,
     Meta,
     Odometry,
     Record,
     TruthObject,
     TruthPose,
 )
-from agrislam.sources.jsonl import LogError, read_log, record_to_json
-from agrislam.sources.ros_messages import (
+from agrislam.ros.conventions import (
+    POSE_COV_INDEX,
+    UNKNOWN_COVARIANCE,
+)
+from agrislam.ros.messages import (
     CAMERA_INFO,
     DETECTION2D_ARRAY,
     DETECTION3D_ARRAY,
@@ -83,248 +76,19 @@ from agrislam.sources.ros_messages import (
     ODOMETRY,
     STRING,
     TF_MESSAGE,
-    Layout,
-    MessageFactory,
-    image_array,
-    open_ros2_writer,
     seconds_to_ns,
     stamp_to_seconds,
     typestore,
 )
-
-META_TOPIC = "/agrislam/meta"
-TRUTH_TOPIC = "/agrislam/truth"
-UNKNOWN_COVARIANCE = -1.0  # covariance[0] of a pose whose covariance is not known (ROS)
-POSE_COV_INDEX = np.array([0, 1, 5])  # x, y, yaw in a row-major 6x6 pose covariance
-_CONTINUOUS = re.compile(r"^(?P<name>[^=;]+)=(?P<value>[^;]+);var=(?P<var>.+)$")
-
-
-class BagSourceConfig(BaseModel):
-    """Which topics of a bag mean what, and how to read them."""
-
-    model_config = ConfigDict(extra="forbid", validate_assignment=True)
-
-    robot: str = Field("r1", description="robot of topics without a robot namespace")
-    odometry_topics: list[str] | None = Field(None, description="default: every nav_msgs/Odometry")
-    detection_topics: list[str] | None = Field(
-        None, description="Detection3DArray / Detection2DArray topics; default: all of them"
-    )
-    depth_topics: list[str] | None = Field(
-        None, description="default: Images with 'depth' in the name"
-    )
-    camera_info_topics: list[str] | None = Field(None, description="default: every CameraInfo")
-    instance_topics: list[str] | None = Field(
-        None,
-        description="instance images (pixel k = detection k-1); default: 'instance' in the name",
-    )
-    rgb_topics: list[str] | None = Field(
-        None, description="colour images for the green filter; default: 'color'/'rgb' in the name"
-    )
-    meta_topic: str = META_TOPIC
-    truth_topic: str = TRUTH_TOPIC
-    base_frame: str | None = Field(
-        None, description="robot base frame; default: the odometry child_frame_id, else base_link"
-    )
-    camera_to_base: tuple[float, float, float, float, float, float, float] | None = Field(
-        None, description="x y z qx qy qz qw of frames tf does not connect to the base"
-    )
-    odom_covariance: Literal["increment", "absolute", "ignore"] = "increment"
-    odometry_form: Literal["pose", "delta"] = "pose"
-    detection_geometry: Literal["xy", "range_bearing"] = "xy"
-    class_names: dict[str, str] = Field(
-        default_factory=dict, description="numeric class id -> class name"
-    )
-    split_labels: bool = Field(True, description="split combined labels with the label map")
-    sync_tolerance: float = Field(0.02, ge=0.0, description="s between detections and depth")
-    vision_msgs_layout: Layout = Field(
-        "humble", description="layout for bags that carry no message definitions"
-    )
-    perception: PerceptionConfig | None = Field(
-        None, description="RGB-D front end; default: from the run's sensor settings"
-    )
-
-
-# ---------------------------------------------------------------------------- report
-
-
-@dataclass(frozen=True, slots=True)
-class BagIssue:
-    kind: str  # missing_topic, unknown_type, undecodable, time_backwards, no_depth, ...
-    topic: str | None
-    stamp: float | None
-    message: str
-
-    def __str__(self) -> str:
-        where = self.topic or "bag"
-        if self.stamp is not None:
-            where += f" @ {self.stamp:.6f}"
-        return f"{where}: {self.kind}: {self.message}"
-
-
-@dataclass
-class BagReport:
-    """What a bag read found: topics used per role, messages, records, issues, filtered
-    detections (beyond the range cut-off: by design, not bad input)."""
-
-    path: str
-    roles: dict[str, list[str]] = field(default_factory=dict)
-    messages: Counter[str] = field(default_factory=Counter)
-    records: Counter[str] = field(default_factory=Counter)
-    filtered: Counter[str] = field(default_factory=Counter)
-    issues: list[BagIssue] = field(default_factory=list)
-    max_issues: int = 10_000
-
-    @property
-    def counts(self) -> Counter[str]:
-        return Counter(i.kind for i in self.issues)
-
-    def add(self, kind: str, topic: str | None, stamp: float | None, message: str) -> None:
-        if len(self.issues) < self.max_issues:
-            self.issues.append(BagIssue(kind, topic, stamp, message))
-
-    def summary(self) -> str:
-        recs = ", ".join(f"{n} {k}" for k, n in sorted(self.records.items())) or "no records"
-        head = f"{self.path}: {recs}"
-        if self.filtered:
-            head += "; filtered " + ", ".join(f"{n} {k}" for k, n in self.filtered.items())
-        if not self.issues:
-            return head + "; no issues"
-        lines = [f"{head}; {len(self.issues)} issues:"]
-        lines += [f"  {i}" for i in self.issues[:20]]
-        if len(self.issues) > 20:
-            lines.append(f"  ... {len(self.issues) - 20} more")
-        return "\n".join(lines)
-
-
-class _SkipError(Exception):
-    """One message (or detection) cannot be used; the reason goes into the report."""
-
-    def __init__(self, kind: str, message: str) -> None:
-        super().__init__(message)
-        self.kind, self.message = kind, message
-
-
-# ----------------------------------------------------------------------- conversions
-
-
-def _pose_matrix(pose: Any) -> np.ndarray:
-    """geometry_msgs/Pose (or Transform) as a 4x4 transform."""
-    p = getattr(pose, "position", None) or pose.translation
-    q = getattr(pose, "orientation", None) or pose.rotation
-    return rigid_transform(rotation_from_quaternion((q.x, q.y, q.z, q.w)), (p.x, p.y, p.z))
-
-
-def _planar(T: np.ndarray) -> np.ndarray:
-    """x, y, yaw of a 4x4 transform."""
-    return np.array([T[0, 3], T[1, 3], math.atan2(T[1, 0], T[0, 0])])
-
-
-def _measurement_class_id(name: str, m: Measurement) -> tuple[str, float]:
-    """(class_id, score) of one attribute measurement: ``attr=value`` with p, or
-    ``attr=value;var=v`` with score 1 for a continuous one."""
-    if "=" in name or ";" in name:
-        raise ValueError(f"attribute name {name!r} cannot be written as a class_id ('=', ';')")
-    if isinstance(m, DiscreteMeasurement):
-        return f"{name}={m.value}", float(m.p)
-    return f"{name}={float(m.value)!r};var={float(m.var)!r}", 1.0
-
-
-def _parse_hypotheses(
-    hyps: list[tuple[str, float]], class_names: dict[str, str]
-) -> tuple[dict[str, Measurement], str | None, float | None]:
-    """Attributes (best score per attribute) and the best combined label of hypotheses."""
-    attributes: dict[str, Measurement] = {}
-    best: dict[str, float] = {}
-    label, label_p = None, None
-    for class_id, score in hyps:
-        class_id = class_names.get(class_id, class_id)
-        if "=" not in class_id:
-            if label is None or (not math.isnan(score) and score > (label_p or -1.0)):
-                label, label_p = class_id, (None if math.isnan(score) else score)
-            continue
-        cont = _CONTINUOUS.match(class_id)
-        if cont:
-            name = cont["name"]
-            try:
-                m: Measurement = ContinuousMeasurement(float(cont["value"]), float(cont["var"]))
-            except ValueError:
-                raise _SkipError("bad_hypothesis", f"class_id {class_id!r}: not numbers") from None
-        else:
-            name, value = class_id.split("=", 1)
-            if not 0.0 <= score <= 1.0:
-                raise _SkipError(
-                    "bad_hypothesis", f"class_id {class_id!r}: score {score} not in [0, 1]"
-                )
-            m = DiscreteMeasurement(value, score)
-        if score > best.get(name, -1.0):
-            attributes[name], best[name] = m, score
-    return attributes, label, label_p
-
-
-def _hypotheses(results: Any) -> list[tuple[str, float, Any]]:
-    """(class_id, score, PoseWithCovariance) of vision_msgs results in either layout:
-    4.x ``hypothesis.class_id`` or Foxy/Noetic ``id`` (string or int64)."""
-    out = []
-    for r in results:
-        h = getattr(r, "hypothesis", r)
-        class_id = h.class_id if hasattr(h, "class_id") else str(h.id)
-        out.append((class_id, float(h.score), r.pose))
-    return out
-
-
-def _box_2d(bbox: Any) -> np.ndarray:
-    """(x0, y0, x1, y1) of a BoundingBox2D: 4.x ``center.position.x``, older ``center.x``."""
-    c = getattr(bbox.center, "position", bbox.center)
-    hx, hy = 0.5 * float(bbox.size_x), 0.5 * float(bbox.size_y)
-    return np.array([c.x - hx, c.y - hy, c.x + hx, c.y + hy], dtype=float)
-
-
-# ------------------------------------------------------------------------- transforms
-
-
-class TransformTree:
-    """The latest transform of every frame to its parent (tf/tf_static)."""
-
-    def __init__(self) -> None:
-        self.parent: dict[str, tuple[str, np.ndarray]] = {}
-
-    def set(self, parent: str, child: str, T: np.ndarray) -> None:
-        self.parent[child.lstrip("/")] = (parent.lstrip("/"), T)
-
-    def _to_root(self, frame: str) -> tuple[str, np.ndarray]:
-        T = np.eye(4)
-        seen = {frame}
-        while frame in self.parent:
-            frame, T_parent = self.parent[frame][0], self.parent[frame][1] @ T
-            T = T_parent
-            if frame in seen:
-                raise ValueError(f"tf has a cycle through {frame!r}")
-            seen.add(frame)
-        return frame, T
-
-    def lookup(self, target: str, source: str) -> np.ndarray | None:
-        """T_target_source (maps points in `source` to `target`), None if not connected."""
-        root_s, T_rs = self._to_root(source.lstrip("/"))
-        root_t, T_rt = self._to_root(target.lstrip("/"))
-        if root_s != root_t:
-            return None
-        return np.linalg.solve(T_rt, T_rs)
-
-
-# ----------------------------------------------------------------------------- reader
-
+from agrislam.sources.bag_config import BagSourceConfig
+from agrislam.sources.bag_report import BagReport, SkipError
+from agrislam.sources.hypotheses import hypotheses, parse_hypotheses
+from agrislam.sources.jsonl import LogError, read_log
+from agrislam.sources.rgbd import ProjectedFrame, RgbdFrames
+from agrislam.sources.transforms import TransformTree, planar, pose_matrix
 
 _UNTIMED = 3
 _KIND_RANK = {Meta: -1, TruthPose: 0, Odometry: 1, Detections: 2, TruthObject: _UNTIMED}
-
-
-def _common_prefix(a: str, b: str) -> int:
-    n = 0
-    for x, y in zip(a, b, strict=False):
-        if x != y:
-            break
-        n += 1
-    return n
 
 
 class _BagReader:
@@ -338,9 +102,6 @@ class _BagReader:
         self.base_frames: dict[str, str] = {}
         self.last_stamp: dict[str, float] = {}
         self.odom_state: dict[str, tuple[np.ndarray, np.ndarray | None]] = {}
-        self.images: dict[str, deque[tuple[float, np.ndarray, str]]] = {}
-        self.cameras: dict[str, tuple[PinholeCamera, str]] = {}
-        self.pending: dict[str, list[tuple[float, Any]]] = {}
         self.robot_order: list[str] = []
         self.records: list[tuple[int, str | None, int, int, Record]] = []
         self._label_map: LabelMap | None = None
@@ -426,7 +187,7 @@ class _BagReader:
                 out.append(t)
         return out
 
-    def _robot_of(self, topic: str, odometry: bool = False) -> tuple[str, str | None]:
+    def robot_of(self, topic: str, odometry: bool = False) -> tuple[str, str | None]:
         """(robot, sensor) of a topic: namespace -> robot, the rest of it -> sensor."""
         parts = topic.strip("/").split("/")[:-1]
         if odometry:
@@ -435,7 +196,7 @@ class _BagReader:
         if parts and parts[0] in robots:
             return parts[0], "/".join(parts[1:]) or None
         if len(robots) > 1:
-            raise _SkipError(
+            raise SkipError(
                 "unknown_robot",
                 f"cannot tell which of the robots {sorted(robots)} this topic belongs to "
                 "(put it under the robot's namespace)",
@@ -459,20 +220,19 @@ class _BagReader:
             self.report.roles = roles
             self.role_of = {t: role for role, ts in roles.items() for t in ts}
             self.topic_type = topics
-            self.odom_robots = {self._robot_of(t, odometry=True)[0] for t in roles["odometry"]}
-            self._pair_cameras(roles)
+            self.odom_robots = {self.robot_of(t, odometry=True)[0] for t in roles["odometry"]}
+            self.rgbd = RgbdFrames(self.bag, self.perception, self, roles, topics)
             conns = [c for c in reader.connections if c.topic in self.role_of]
             stream = reader.messages(connections=conns) if conns else iter(())  # () = all
             for conn, logtime, raw in stream:
                 self.report.messages[conn.topic] += 1
                 try:
                     msg = self._deserialize(reader, conn, raw)
-                except _SkipError as skip:
+                except SkipError as skip:
                     self.report.add(skip.kind, conn.topic, logtime * 1e-9, skip.message)
                     continue
                 self._dispatch(conn.topic, msg, logtime)
-            for topic in list(self.pending):
-                self._resolve_pending(topic, final=True)
+            self._place_2d(self.rgbd.finish())
         finally:
             reader.close()
         ordered = self._ordered()
@@ -495,7 +255,7 @@ class _BagReader:
                         f" (the bag has no definition of it; decoded with the "
                         f"{self.bag.vision_msgs_layout!r} layout: set vision_msgs_layout)"
                     )
-                raise _SkipError(
+                raise SkipError(
                     "undecodable", f"cannot decode {conn.msgtype}: {err}{hint}"
                 ) from None
 
@@ -506,7 +266,7 @@ class _BagReader:
             return
         if role == "tf":
             for tr in msg.transforms:
-                self.tree.set(tr.header.frame_id, tr.child_frame_id, _pose_matrix(tr.transform))
+                self.tree.set(tr.header.frame_id, tr.child_frame_id, pose_matrix(tr.transform))
             return
         stamp = stamp_to_seconds(msg.header.stamp)
         last = self.last_stamp.get(topic)
@@ -525,22 +285,14 @@ class _BagReader:
             elif role == "detections" and self.topic_type[topic] == DETECTION3D_ARRAY:
                 self._detections_3d(topic, stamp, msg)
             elif role == "detections":
-                self.pending.setdefault(topic, []).append((stamp, msg))
-                self._resolve_pending(topic)
+                self._place_2d(self.rgbd.add_frame(topic, stamp, msg))
             elif role == "camera_info":
-                self._camera_info(topic, stamp, msg)
+                self.rgbd.camera_info(topic, msg)
             else:  # depth, instance, rgb images
-                buf = self.images.setdefault(topic, deque(maxlen=64))
-                try:
-                    array = image_array(msg)
-                except ValueError as err:
-                    raise _SkipError("bad_image", str(err)) from None
-                buf.append((stamp, array, msg.header.frame_id))
+                self.rgbd.add_image(topic, stamp, msg)
                 if role == "depth":
-                    for det_topic, depth_topic in self.depth_of.items():
-                        if depth_topic == topic and det_topic in self.pending:
-                            self._resolve_pending(det_topic)
-        except _SkipError as skip:
+                    self._place_2d(self.rgbd.waiting_on(topic))
+        except SkipError as skip:
             self.report.add(skip.kind, topic, stamp, skip.message)
 
     def _emit(self, rec: Record, logtime: int | None = None) -> None:
@@ -581,10 +333,10 @@ class _BagReader:
         self._emit(rec, logtime)
 
     def _odometry(self, topic: str, stamp: float, msg: Any) -> None:
-        robot, _ = self._robot_of(topic, odometry=True)
+        robot, _ = self.robot_of(topic, odometry=True)
         if msg.child_frame_id:
             self.base_frames.setdefault(robot, msg.child_frame_id.lstrip("/"))
-        pose = _planar(_pose_matrix(msg.pose.pose))
+        pose = planar(pose_matrix(msg.pose.pose))
         full = np.asarray(msg.pose.covariance, dtype=float).reshape(6, 6)
         prev = self.odom_state.get(robot)
         self.odom_state[robot] = (pose, full)
@@ -626,7 +378,7 @@ class _BagReader:
             return None
         return cov
 
-    def _to_base(self, frame: str, robot: str) -> np.ndarray:
+    def to_base(self, frame: str, robot: str) -> np.ndarray:
         base = self.base_frames.get(robot) or self.bag.base_frame or "base_link"
         frame = frame.lstrip("/")
         if frame in ("", base):
@@ -637,19 +389,19 @@ class _BagReader:
         if self.bag.camera_to_base is not None:
             x, y, z, *q = self.bag.camera_to_base
             return rigid_transform(rotation_from_quaternion(q), (x, y, z))
-        raise _SkipError(
+        raise SkipError(
             "no_transform",
             f"no transform from frame {frame!r} to the base frame {base!r} "
             "(record tf_static, or set camera_to_base in the config)",
         )
 
     def _detections_3d(self, topic: str, stamp: float, msg: Any) -> None:
-        robot, sensor = self._robot_of(topic)
+        robot, sensor = self.robot_of(topic)
         objects = []
         for i, det in enumerate(msg.detections):
             frame = msg.header.frame_id or det.header.frame_id
-            T = self._to_base(frame, robot)
-            hyps = _hypotheses(det.results)
+            T = self.to_base(frame, robot)
+            hyps = hypotheses(det.results)
             center = det.bbox.center.position
             size = det.bbox.size
             if any((center.x, center.y, center.z, size.x, size.y, size.z)) or not hyps:
@@ -665,10 +417,10 @@ class _BagReader:
                     cov = (T[:3, :3] @ c3 @ T[:3, :3].T)[:2, :2]
                     break
             try:
-                attrs, label, label_p = _parse_hypotheses(
+                attrs, label, label_p = parse_hypotheses(
                     [(c, s) for c, s, _ in hyps], self.bag.class_names
                 )
-            except _SkipError as skip:
+            except SkipError as skip:
                 self.report.add(skip.kind, topic, stamp, f"detection {i}: {skip.message}")
                 continue
             truth_id = getattr(det, "id", "") or getattr(det, "tracking_id", "") or None
@@ -702,255 +454,47 @@ class _BagReader:
             self.report.add("unknown_label", topic, stamp, f"detection {i}: {err}; label dropped")
             return dataclasses.replace(obj, label=None, label_p=None)
 
-    def _camera_info(self, topic: str, stamp: float, msg: Any) -> None:
-        k = np.asarray(msg.k if hasattr(msg, "k") else msg.K, dtype=float)
-        d = np.asarray(msg.d if hasattr(msg, "d") else msg.D, dtype=float)
-        try:
-            camera = PinholeCamera.from_camera_info(k, msg.width, msg.height, d)
-        except ValueError as err:
-            raise _SkipError("bad_camera_info", f"CameraInfo unusable: {err}") from None
-        self.cameras[topic] = (camera, msg.header.frame_id)
-
-    def _pair_cameras(self, roles: dict[str, list[str]]) -> None:
-        """Detection2D topic -> depth, camera_info, instance, rgb topics (longest common
-        prefix of the topic names)."""
-
-        def nearest(topic: str, candidates: list[str]) -> str | None:
-            return max(candidates, key=lambda c: _common_prefix(topic, c), default=None)
-
-        self.depth_of: dict[str, str | None] = {}
-        self.info_of: dict[str, str | None] = {}
-        self.instance_of: dict[str, str | None] = {}
-        self.rgb_of: dict[str, str | None] = {}
-        for t in roles["detections"]:
-            if self.topic_type[t] != DETECTION2D_ARRAY:
-                continue
-            depth = nearest(t, roles["depth"])
-            self.depth_of[t] = depth
-            self.info_of[t] = nearest(depth or t, roles["camera_info"])
-            self.instance_of[t] = nearest(t, roles["instance"])
-            self.rgb_of[t] = nearest(t, roles["rgb"])
-
-    def _image_at(self, topic: str | None, stamp: float) -> tuple[np.ndarray, str] | None:
-        if topic is None:
-            return None
-        best = None
-        for s, img, frame in self.images.get(topic, ()):
-            if abs(s - stamp) <= self.bag.sync_tolerance and (
-                best is None or abs(s - stamp) < abs(best[0] - stamp)
-            ):
-                best = (s, img, frame)
-        return None if best is None else (best[1], best[2])
-
-    def _resolve_pending(self, topic: str, final: bool = False) -> None:
-        """Project the Detection2D arrays of `topic` whose depth image has arrived (or, at
-        the end of the bag or once later depth images exist, report them)."""
-        depth_topic = self.depth_of.get(topic)
-        newest = max((s for s, _, _ in self.images.get(depth_topic or "", ())), default=-math.inf)
-        keep = []
-        for stamp, msg in self.pending.get(topic, []):
-            found = self._image_at(depth_topic, stamp)
-            if found is None and not final and newest <= stamp + self.bag.sync_tolerance:
-                keep.append((stamp, msg))  # its depth image may still come
-                continue
-            try:
-                if found is None:
-                    raise _SkipError(
-                        "no_depth",
-                        f"no depth image on {depth_topic or '(no depth topic)'} within "
-                        f"{self.bag.sync_tolerance} s; frame dropped",
-                    )
-                self._detections_2d(topic, stamp, msg, *found)
-            except _SkipError as skip:
-                self.report.add(skip.kind, topic, stamp, skip.message)
-        self.pending[topic] = keep
-
-    def _detections_2d(
-        self, topic: str, stamp: float, msg: Any, depth: np.ndarray, frame: str
-    ) -> None:
-        robot, sensor = self._robot_of(topic)
-        info = self.info_of.get(topic)
-        if info not in self.cameras:
-            raise _SkipError(
-                "no_camera_info", f"no valid CameraInfo on {info or '(none)'} yet; frame dropped"
-            )
-        camera, info_frame = self.cameras[info]  # type: ignore[index]
-        if depth.shape != (camera.height, camera.width):
-            raise _SkipError(
-                "bad_image",
-                f"depth image {depth.shape[1]}x{depth.shape[0]} differs from CameraInfo "
-                f"{camera.width}x{camera.height}",
-            )
-        camera = camera.with_mount(self._to_base(frame or info_frame, robot))
-        instance = self._image_at(self.instance_of.get(topic), stamp)
-        rgb = self._image_at(self.rgb_of.get(topic), stamp)
-        if self.perception.green_filter and rgb is None:
-            raise _SkipError("no_rgb", "green filter on but no colour image within the tolerance")
-        image_dets, extras = [], []
-        for i, det in enumerate(msg.detections):
-            hyps = _hypotheses(det.results)
-            try:
-                attrs, label, label_p = _parse_hypotheses(
-                    [(c, s) for c, s, _ in hyps], self.bag.class_names
-                )
-            except _SkipError as skip:
-                raise _SkipError(skip.kind, f"detection {i}: {skip.message}") from None
-            mask = None if instance is None else (instance[0] == i + 1)
-            image_dets.append(ImageDetection(_box_2d(det.bbox), label or "", label_p or 0.0, mask))
-            extras.append((attrs, label, label_p, getattr(det, "id", "") or None))
-        result = RgbdDetector(camera, self.perception).detect(
-            stamp, robot, depth, image_dets, None if rgb is None else rgb[0], sensor
-        )
-        dropped = set()
-        for issue in result.issues:
-            dropped.add(issue.index)
-            if issue.kind == "beyond_range":
-                self.report.filtered["beyond_range"] += 1
-            else:
-                self.report.add(
-                    issue.kind, topic, stamp, f"detection {issue.index}: {issue.message}"
-                )
-        objects = []
-        kept = [i for i in range(len(image_dets)) if i not in dropped]
-        for i, obj in zip(kept, result.detections.objects, strict=True):
-            attrs, label, label_p, truth_id = extras[i]
-            merged = {**obj.attributes, **attrs}
-            obj = dataclasses.replace(
-                obj, attributes=merged, label=label, label_p=label_p, truth_id=truth_id
-            )
-            objects.append(self._semantics(obj, topic, stamp, i))
-        self._emit(Detections(stamp, robot, tuple(objects), sensor))
+    def _place_2d(self, frames: Iterable[ProjectedFrame]) -> None:
+        """Emit the projected Detection2D frames, their labels split by the schema."""
+        for f in frames:
+            objects = [self._semantics(obj, f.topic, f.stamp, i) for i, obj in f.objects]
+            self._emit(Detections(f.stamp, f.robot, tuple(objects), f.sensor))
 
 
-def open_bag_source(
-    path: str | Path,
-    config: AgrislamConfig | None = None,
-    bag: BagSourceConfig | None = None,
-) -> tuple[Iterator[Record], BagReport]:
-    """Records of a ROS bag in time order, and the report that fills as they are read.
+class BagSource:
+    """A ROS bag as a source: its records in time order, and the report of what the latest
+    pass found.
 
     `path`: a rosbag2 folder (sqlite3 or MCAP storage), a bare ``.mcap`` file, or a ROS 1
     ``.bag``. `config` gives the schema, label map and sensor defaults; `bag` the topics.
-    The bag is read on the first ``next()``; the report is complete once the iterator is.
+    Each `records()` reads the bag on its first ``next()``; its report is complete once the
+    iterator is.
     """
-    reader = _BagReader(Path(path), config or AgrislamConfig(), bag or BagSourceConfig())
 
-    def records() -> Iterator[Record]:
-        yield from reader.read()
+    def __init__(
+        self,
+        path: str | Path,
+        config: AgrislamConfig | None = None,
+        bag: BagSourceConfig | None = None,
+    ) -> None:
+        self.path = Path(path)
+        self.config = config or AgrislamConfig()
+        self.bag = bag or BagSourceConfig()
+        self._report = BagReport(str(self.path))
 
-    return records(), reader.report
+    @property
+    def name(self) -> str:
+        return str(self.path)
 
+    @property
+    def report(self) -> BagReport:
+        return self._report
 
-# ----------------------------------------------------------------------------- writer
-
-
-class _SurveyBagWriter:
-    def __init__(self, writer: Any, factory: MessageFactory) -> None:
-        self.writer, self.make = writer, factory
-        self.connections: dict[str, Any] = {}
-        self.odom_pose: dict[str, np.ndarray] = {}
-        self.last_ns = 0
-        self.count = 0
-
-    def _write(self, topic: str, msgtype: str, msg: Any, ns: int) -> None:
-        conn = self.connections.get(topic)
-        if conn is None:
-            conn = self.writer.add_connection(topic, msgtype, typestore=self.make.store)
-            self.connections[topic] = conn
-        self.writer.write(conn, ns, self.make.serialize(msg, msgtype))
-        self.count += 1
-
-    def write(self, rec: Record) -> None:
-        if isinstance(rec, Odometry):
-            self._odometry(rec)
-        elif isinstance(rec, Detections):
-            self._detections(rec)
-        elif isinstance(rec, Meta | TruthPose | TruthObject):
-            topic = META_TOPIC if isinstance(rec, Meta) else TRUTH_TOPIC
-            if isinstance(rec, TruthPose):
-                self.last_ns = max(self.last_ns, seconds_to_ns(rec.t))
-            text = json.dumps(record_to_json(rec), separators=(",", ":"), allow_nan=False)
-            self._write(topic, STRING, self.make.T[STRING](data=text), self.last_ns)
-        else:
-            raise TypeError(f"not a record: {rec!r}")
-
-    def _odometry(self, rec: Odometry) -> None:
-        if rec.pose is not None:
-            pose = np.asarray(rec.pose, dtype=float)
-        else:  # integrate the increments into the odometry-frame pose nav_msgs carries
-            previous = self.odom_pose.get(rec.robot, np.zeros(3))
-            pose = compose(previous, np.asarray(rec.delta, dtype=float))
-        self.odom_pose[rec.robot] = pose
-        cov6 = np.zeros((6, 6))
-        if rec.cov is None:
-            cov6[0, 0] = UNKNOWN_COVARIANCE
-        else:
-            cov6[np.ix_(POSE_COV_INDEX, POSE_COV_INDEX)] = rec.cov
-        msg = self.make.odometry(
-            rec.t,
-            f"{rec.robot}/odom",
-            f"{rec.robot}/base_link",
-            (pose[0], pose[1], 0.0),
-            quaternion_from_yaw(pose[2]),
-            cov6,
-        )
-        ns = seconds_to_ns(rec.t)
-        self.last_ns = max(self.last_ns, ns)
-        self._write(f"/{rec.robot}/odom", ODOMETRY, msg, ns)
-
-    def _detections(self, rec: Detections) -> None:
-        frame = f"{rec.robot}/base_link"
-        dets = []
-        for d in rec.objects:
-            xy, cov = _xy_cov(d)
-            hyps: list[tuple[str | int, float]] = []
-            if d.label is not None:
-                hyps.append((d.label, math.nan if d.label_p is None else float(d.label_p)))
-            hyps += [_measurement_class_id(n, m) for n, m in d.attributes.items()]
-            center = (xy[0], xy[1], 0.0)
-            dets.append(self.make.detection3d(rec.t, frame, center, hyps, cov, d.truth_id or ""))
-        msg = self.make.detection_array(rec.t, frame, dets)
-        topic = (
-            f"/{rec.robot}/{rec.sensor}/detections" if rec.sensor else f"/{rec.robot}/detections"
-        )
-        ns = seconds_to_ns(rec.t)
-        self.last_ns = max(self.last_ns, ns)
-        self._write(topic, DETECTION3D_ARRAY, msg, ns)
+    def records(self) -> Iterator[Record]:
+        reader = _BagReader(self.path, self.config, self.bag)
+        self._report = reader.report
+        return _read(reader)
 
 
-def _xy_cov(d: Detection) -> tuple[np.ndarray, np.ndarray | None]:
-    """Position and covariance of a detection in either geometry (range/bearing sigmas
-    become the ray-aligned covariance R diag(sr^2, (r sb)^2) R^T)."""
-    if d.xy is not None:
-        return np.asarray(d.xy, dtype=float), None if d.cov is None else np.asarray(
-            d.cov, dtype=float
-        )
-    xy = d.position()
-    if d.sigma_range is None or d.sigma_bearing is None:
-        return xy, None
-    c, s = math.cos(d.bearing), math.sin(d.bearing)  # type: ignore[arg-type]
-    R = np.array([[c, -s], [s, c]])
-    return xy, R @ np.diag([d.sigma_range**2, (d.range * d.sigma_bearing) ** 2]) @ R.T  # type: ignore[operator]
-
-
-def write_survey_bag(
-    records: Iterable[Record], path: str | Path, storage: Literal["mcap", "sqlite3"] = "mcap"
-) -> int:
-    """Write a survey as a ROS 2 bag; returns the number of messages.
-
-    `path` ending in ``.mcap``: a bare MCAP file; otherwise a rosbag2 folder with the given
-    storage. Odometry -> ``/<robot>/odom`` (nav_msgs/Odometry, frames ``<robot>/odom`` and
-    ``<robot>/base_link``; deltas are integrated into poses; the increment covariance in
-    the pose covariance, -1 in its first entry when unknown). Detections ->
-    ``/<robot>/[<sensor>/]detections`` (vision_msgs 4.x Detection3DArray in the base frame:
-    one hypothesis per attribute, ``attr=value`` with p as score, or
-    ``attr=value;var=v``; a combined label as its own hypothesis (NaN score when it has
-    none); the covariance in the hypothesis pose; truth_id as ``id``; range/bearing
-    detections as position + ray covariance). Meta, TruthPose and TruthObject ->
-    ``/agrislam/meta`` and ``/agrislam/truth`` as survey-log JSON lines (std_msgs/String).
-    """
-    with open_ros2_writer(path, storage) as writer:
-        out = _SurveyBagWriter(writer, MessageFactory("humble"))
-        for rec in records:
-            out.write(rec)
-        return out.count
+def _read(reader: _BagReader) -> Iterator[Record]:
+    yield from reader.read()
