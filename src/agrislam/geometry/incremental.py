@@ -33,7 +33,7 @@ from agrislam.geometry.base import BackendBase, pose_array
 from agrislam.geometry.batch import insert_value, solve, value_array
 from agrislam.geometry.graph import POSE, ROW, SurveyGraph, key_index, key_kind, make_factor
 from agrislam.geometry.noise import gaussian, relative_to_range_bearing
-from agrislam.geometry.se2 import between, compose, rotation
+from agrislam.geometry.se2 import between, compose, point_jacobian, rotation, to_robot_frame
 
 # conditioning on a keyframe: its prior (m, rad); others only kept from floating away
 FIXED_SIGMA = 1e-4
@@ -58,11 +58,6 @@ class Anchored:
     keyframe: int
     z: np.ndarray
     cov: np.ndarray
-
-
-def point_in_frame(pose: np.ndarray, xy: np.ndarray) -> np.ndarray:
-    """Map point xy in the frame of pose: R^T (xy - t)."""
-    return rotation(pose[2]).T @ (np.asarray(xy, dtype=float) - pose[:2])
 
 
 def conditioned(
@@ -180,12 +175,8 @@ class IncrementalBackend(BackendBase):
         if factor.keys and key_kind(factor.keys[0]) == POSE and len(factor.keys) == 2:
             obj = factor.keys[1]
             if key_kind(obj) != POSE:
-                self._last_seen[obj] = (self._robot_of(factor.keys[0]), self._step)
+                self._last_seen[obj] = (self.graph.robot_of(factor.keys[0]), self._step)
         self._push(_Pending(make_factor(factor, self.slam), factor.keys, fid=fid))
-
-    def _robot_of(self, pose: int) -> str:
-        index = gtsam.Symbol(pose).index() // (1 << 40)
-        return next(name for name, chain in self.graph.robots.items() if chain.index == index)
 
     def _remove(self, fid: int) -> None:
         if fid in self._pending_at:
@@ -344,7 +335,7 @@ class IncrementalBackend(BackendBase):
         anchored: dict[int, list[int]] = {}
         for key in window:
             if key_kind(key) == POSE:
-                keyframe = self._keyframes[self._robot_of(key)][-1]
+                keyframe = self._keyframes[self.graph.robot_of(key)][-1]
                 rel = between(value_array(point, keyframe), value_array(point, key))
                 self._retired_pose[key] = (keyframe, rel)
                 continue
@@ -367,7 +358,7 @@ class IncrementalBackend(BackendBase):
             kf_pose = value_array(point, keyframe)
             rot = rotation(kf_pose[2])
             for key in keys:
-                z = point_in_frame(kf_pose, value_array(point, key))
+                z = to_robot_frame(kf_pose, value_array(point, key))
                 cov = rot.T @ marginals.marginalCovariance(key) @ rot
                 self._anchored[key] = Anchored(keyframe, z, cov)
 
@@ -405,7 +396,7 @@ class IncrementalBackend(BackendBase):
             self._slot_keys = {n: f.keys for n, f in enumerate(self.graph.factors.values())}
             return
         for key, anchor in self._anchored.items():
-            anchor.z = point_in_frame(
+            anchor.z = to_robot_frame(
                 value_array(solution, anchor.keyframe), value_array(solution, key)
             )
         for key, (keyframe, _) in self._retired_pose.items():
@@ -502,11 +493,8 @@ class IncrementalBackend(BackendBase):
         if anchors:
             poses, z = self._keyframe_poses(anchors)
             rot = np.stack([rotation(t) for t in poses[:, 2]])
-            # l = K (+) z: dl/d(dx, dy, dtheta) = R [[1, 0, -z_y], [0, 1, z_x]]; dl/dz = R
-            local = np.zeros((len(z), 2, 3))
-            local[:, 0, 0] = local[:, 1, 1] = 1.0
-            local[:, 0, 2], local[:, 1, 2] = -z[:, 1], z[:, 0]
-            jac = rot @ local
+            # l = K (+) z: dl/dxi = R point_jacobian(z) for K Exp(xi) (GTSAM's tangent); dl/dz = R
+            jac = rot @ point_jacobian(z)
             cov_k = np.stack([self._marginal_covariance(a.keyframe) for a in anchors])
             cov_z = np.stack([a.cov for a in anchors])
             rot_t = np.swapaxes(rot, 1, 2)
