@@ -23,7 +23,6 @@ carries on from that solution; call it at the end of a survey, or when time allo
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 import gtsam
 import numpy as np
@@ -32,7 +31,7 @@ from agrislam.config import RowsConfig, SlamConfig
 from agrislam.geometry.base import BackendBase, pose_array
 from agrislam.geometry.batch import insert_value, solve, value_array
 from agrislam.geometry.graph import POSE, ROW, SurveyGraph, key_index, key_kind, make_factor
-from agrislam.geometry.noise import gaussian, relative_to_range_bearing
+from agrislam.geometry.isam_state import Anchored, Entry, PendingUpdate, SlotTable, anchor_factor
 from agrislam.geometry.se2 import between, compose, point_jacobian, rotation, to_robot_frame
 
 # conditioning on a keyframe: its prior (m, rad); others only kept from floating away
@@ -48,16 +47,6 @@ def isam2(slam: SlamConfig) -> gtsam.ISAM2:
     params.relinearizeSkip = slam.relinearize_skip
     params.setFactorization(slam.factorization.upper())
     return gtsam.ISAM2(params)
-
-
-@dataclass(slots=True)
-class Anchored:
-    """A retired object: at `z` in keyframe `keyframe`'s frame, `cov` the 2x2 marginal
-    covariance of z (from the joint marginal of keyframe and object)."""
-
-    keyframe: int
-    z: np.ndarray
-    cov: np.ndarray
 
 
 def conditioned(
@@ -77,25 +66,6 @@ def conditioned(
     return out
 
 
-def anchor_factor(anchor: Anchored, key: int) -> gtsam.NonlinearFactor:
-    """The retired object's relative position as a factor between its keyframe and it."""
-    bearing, rng, cov_br = relative_to_range_bearing(anchor.z, anchor.cov)
-    return gtsam.BearingRangeFactor2D(
-        anchor.keyframe, key, gtsam.Rot2(bearing), rng, gaussian(cov_br)
-    )
-
-
-@dataclass(slots=True)
-class _Pending:
-    """A factor for the next update: from the record (`fid`) or an anchor of `anchor_of`."""
-
-    factor: gtsam.NonlinearFactor
-    keys: tuple[int, ...]
-    fid: int | None = None
-    anchor_of: int | None = None
-    anchor: Anchored | None = None
-
-
 class IncrementalBackend(BackendBase):
     """iSAM2 with keyframes every `slam.window` steps; `window = 0` is plain iSAM2."""
 
@@ -105,14 +75,8 @@ class IncrementalBackend(BackendBase):
         self._isam = isam2(slam)
         self._live: set[int] = set()  # keys in the iSAM2 graph (solved or pending)
         self._permanent: set[int] = set()  # keyframes and row nodes
-        self._pending: list[_Pending | None] = []
-        self._pending_at: dict[int, int] = {}  # fid -> position in self._pending
-        self._pending_values = gtsam.Values()
-        self._pending_guess: dict[int, np.ndarray] = {}
-        self._removals: list[int] = []
-        self._slot: dict[int, int] = {}  # fid -> iSAM2 factor slot
-        self._slot_keys: dict[int, tuple[int, ...]] = {}  # live slot -> its keys
-        self._anchor_slot: dict[int, list[tuple[int, Anchored]]] = {}  # key -> live anchors
+        self._pending = PendingUpdate()
+        self._slots = SlotTable()
         self._guess: dict[int, np.ndarray] = {}  # nodes no factor has used yet
         self._anchored: dict[int, Anchored] = {}  # retired objects
         self._retired_pose: dict[int, tuple[int, np.ndarray]] = {}  # key -> (keyframe, rel)
@@ -155,18 +119,11 @@ class IncrementalBackend(BackendBase):
             self._push_anchor(key, anchor)
         else:
             raise KeyError(f"node {gtsam.DefaultKeyFormatter(key)} has no estimate to enter with")
-        insert_value(self._pending_values, key, value)
-        self._pending_guess[key] = value
+        self._pending.enter(key, value)
         self._live.add(key)
 
     def _push_anchor(self, key: int, anchor: Anchored) -> None:
-        factor = anchor_factor(anchor, key)
-        self._push(_Pending(factor, (anchor.keyframe, key), anchor_of=key, anchor=anchor))
-
-    def _push(self, pending: _Pending) -> None:
-        if pending.fid is not None:
-            self._pending_at[pending.fid] = len(self._pending)
-        self._pending.append(pending)
+        self._pending.add(anchor_factor(anchor, key), Entry((anchor.keyframe, key), anchor=anchor))
 
     def _add(self, fid: int) -> None:
         factor = self.graph.factors[fid]
@@ -176,44 +133,34 @@ class IncrementalBackend(BackendBase):
             obj = factor.keys[1]
             if key_kind(obj) != POSE:
                 self._last_seen[obj] = (self.graph.robot_of(factor.keys[0]), self._step)
-        self._push(_Pending(make_factor(factor, self.slam), factor.keys, fid=fid))
+        self._pending.add(make_factor(factor, self.slam), Entry(factor.keys, fid))
 
     def _remove(self, fid: int) -> None:
-        if fid in self._pending_at:
-            self._pending[self._pending_at.pop(fid)] = None
-        elif fid in self._slot:
-            slot = self._slot.pop(fid)
-            self._removals.append(slot)
-            self._slot_keys.pop(slot, None)
+        if not self._pending.drop_factor(fid) and (slot := self._slots.pop_factor(fid)) is not None:
+            self._pending.remove([slot])
 
     def _replace(self, old: int, new: int | None) -> None:
-        live = old in self._pending_at or old in self._slot
+        live = self._pending.has_factor(old) or self._slots.has_factor(old)
         self._remove(old)
         if new is not None and live:
             self._add(new)
 
     def _forget(self, key: int, into: int | None) -> None:
         """Drop a node; merged into `into`, its anchors (or retired position) go along."""
-        anchors = [a for _, a in self._anchor_slot.pop(key, [])]
-        for slot in [s for s, keys in self._slot_keys.items() if key in keys]:
-            self._removals.append(slot)
-            del self._slot_keys[slot]
-        for n, pending in enumerate(self._pending):
-            if pending is not None and pending.anchor_of == key:
-                self._pending[n] = None
-                anchors.append(pending.anchor)
+        slots = self._slots.touching({key})
+        self._pending.remove(slots)
+        anchors = [e.anchor for e in self._slots.drop(slots) if e.anchor is not None]
+        anchors += self._pending.drop_anchors_of(key)
         if key in self._anchored:
             anchors.append(self._anchored[key])
         if into is not None:
             self._enter(into)
             for anchor in anchors:
                 self._push_anchor(into, anchor)
-        if self._pending_values.exists(key):
-            self._pending_values.erase(key)
+        self._pending.drop_node(key)
         for table in (
             self._guess,
             self._anchored,
-            self._pending_guess,
             self._last_seen,
             self._cov_cache,
         ):
@@ -222,8 +169,9 @@ class IncrementalBackend(BackendBase):
         self._permanent.discard(key)
 
     def _estimate(self, key: int) -> np.ndarray:
-        if key in self._pending_guess:
-            return self._pending_guess[key]
+        guess = self._pending.guess(key)
+        if guess is not None:
+            return guess
         if key in self._live:
             if key_kind(key) == POSE:
                 return pose_array(self._isam.calculateEstimatePose2(key))
@@ -260,29 +208,11 @@ class IncrementalBackend(BackendBase):
         return max(turned, default=0.0)
 
     def _solve_pending(self, extra: gtsam.NonlinearFactorGraph | None = None) -> None:
-        new = gtsam.NonlinearFactorGraph()
-        pending = [p for p in self._pending if p is not None]
-        for p in pending:
-            new.push_back(p.factor)
-        if extra is not None:
-            new.push_back(extra)
-        if new.size() == 0 and not self._removals:
-            return
-        result = self._isam.update(new, self._pending_values, self._removals)
-        slots = list(result.getNewFactorsIndices())
-        for p, slot in zip(pending, slots, strict=False):
-            self._slot_keys[slot] = p.keys
-            if p.fid is not None:
-                self._slot[p.fid] = slot
-            else:
-                self._anchor_slot.setdefault(p.anchor_of, []).append((slot, p.anchor))
-        if extra is not None:
-            for slot, n in zip(slots[len(pending) :], range(extra.size()), strict=True):
-                self._slot_keys[slot] = tuple(extra.at(n).keys())
-        self._pending, self._pending_at, self._removals = [], {}, []
-        self._pending_values = gtsam.Values()
-        self._pending_guess.clear()
-        self._cov_cache.clear()
+        """One iSAM2 update with what is pending (and `extra`'s factors)."""
+        filled = self._pending.flush(self._isam, extra)
+        if filled is not None:
+            self._slots.fill(filled)
+            self._cov_cache.clear()
 
     def _fold(self) -> None:
         """Keyframe each robot's latest pose; marginalise the rest of the window out."""
@@ -294,12 +224,12 @@ class IncrementalBackend(BackendBase):
         window = self._live - self._permanent
         if window:
             self._converge()
-            slots = [s for s, keys in self._slot_keys.items() if not window.isdisjoint(keys)]
+            slots = self._slots.touching(window)
             factors = self._isam.getFactorsUnsafe()
             graph, point = gtsam.NonlinearFactorGraph(), gtsam.Values()
             for slot in slots:
                 graph.push_back(factors.at(slot))
-                for key in self._slot_keys[slot]:
+                for key in self._slots.keys(slot):
                     if not point.exists(key):
                         insert_value(point, key, self._estimate(key))
             self._retire(window, graph, point)
@@ -307,11 +237,8 @@ class IncrementalBackend(BackendBase):
             for key in marginal.keyVector():
                 if key_kind(key) == POSE and key not in self._folded_heading:
                     self._folded_heading[key] = point.atPose2(key).theta()
-            for slot in slots:
-                del self._slot_keys[slot]
-            self._removals.extend(slots)
-            self._slot = {f: s for f, s in self._slot.items() if s in self._slot_keys}
-            self._anchor_slot.clear()
+            self._slots.drop(slots)
+            self._pending.remove(slots)
             self._live -= window
             self._solve_pending(marginal)
         self._window_start = self._step
@@ -349,10 +276,9 @@ class IncrementalBackend(BackendBase):
         # with the factors already among the blanket's nodes (odometry between keyframes,
         # row spacing): an object seen from two keyframes is known given either
         around = graph.clone()
-        factors, inside = self._isam.getFactorsUnsafe(), set(blanket)
-        for slot, keys in self._slot_keys.items():
-            if inside.issuperset(keys):
-                around.push_back(factors.at(slot))
+        factors = self._isam.getFactorsUnsafe()
+        for slot in self._slots.inside(set(blanket)):
+            around.push_back(factors.at(slot))
         for keyframe, keys in anchored.items():
             marginals = gtsam.Marginals(conditioned(around, point, keyframe, blanket), point)
             kf_pose = value_array(point, keyframe)
@@ -392,8 +318,7 @@ class IncrementalBackend(BackendBase):
         self._cov_cache.clear()
         if not self.window:
             self._isam.update(graph, solution)
-            self._slot = {fid: n for n, fid in enumerate(self.graph.factors)}
-            self._slot_keys = {n: f.keys for n, f in enumerate(self.graph.factors.values())}
+            self._slots.reset(Entry(f.keys, fid) for fid, f in self.graph.factors.items())
             return
         for key, anchor in self._anchored.items():
             anchor.z = to_robot_frame(
@@ -408,7 +333,8 @@ class IncrementalBackend(BackendBase):
         """Live graph = keyframes and rows with the whole history marginalised onto them
         at `solution`, plus the record's factors between them (kept nonlinear)."""
         history, live = gtsam.NonlinearFactorGraph(), gtsam.NonlinearFactorGraph()
-        fids, gone = [], set()
+        fids: list[int | None] = []
+        gone: set[int] = set()
         for fid, factor in self.graph.factors.items():
             if self._permanent.issuperset(factor.keys):
                 fids.append(fid)
@@ -426,9 +352,8 @@ class IncrementalBackend(BackendBase):
         folded = gtsam.LinearContainerFactor.ConvertLinearGraph(remaining, kept)
         live.push_back(folded)
         self._isam.update(live, values)
-        self._slot = {fid: n for n, fid in enumerate(fids)}
-        self._slot_keys = {n: tuple(live.at(n).keys()) for n in range(live.size())}
-        self._anchor_slot.clear()
+        fids.extend([None] * folded.size())
+        self._slots.reset(Entry(tuple(live.at(n).keys()), fid) for n, fid in enumerate(fids))
         self._folded_heading = {
             k: solution.atPose2(k).theta() for k in folded.keyVector() if key_kind(k) == POSE
         }
@@ -437,7 +362,7 @@ class IncrementalBackend(BackendBase):
     # ---------------------------------------------------------------- queries
     def current_pose_covariance(self, robot: str) -> np.ndarray:
         """(3, 3) marginal covariance of the robot's latest pose (x, y, theta)."""
-        if self._pending_guess:
+        if self._pending.has_nodes():
             self._solve_pending()
         return self._marginal_covariance(self.graph.robot(robot).keys[-1])
 
@@ -482,7 +407,8 @@ class IncrementalBackend(BackendBase):
     def object_covariances(self, object_ids: np.ndarray) -> np.ndarray:
         """(k, 2, 2) marginal covariances of the given objects, cached until the next step;
         a retired object's combines its keyframe's and its relative position's."""
-        if any(self.graph.require_object(int(i)) in self._pending_guess for i in object_ids):
+        require, pending = self.graph.require_object, self._pending.guess
+        if any(pending(require(int(i))) is not None for i in object_ids):
             self._solve_pending()  # entered since the last update (a merge): solve them now
         retired, live, anchors = self._split(object_ids)
         out = np.empty((len(object_ids), 2, 2))
