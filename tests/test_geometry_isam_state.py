@@ -1,5 +1,5 @@
 """The incremental back end's state parts (geometry/isam_state.py) on their own: the
-pending update against a real iSAM2, and the slot table's bookkeeping."""
+pending update against a real iSAM2, the slot table's bookkeeping, the retired rows."""
 
 import gtsam
 import numpy as np
@@ -9,8 +9,12 @@ from agrislam.geometry.isam_state import (
     Anchored,
     Entry,
     PendingUpdate,
+    Retired,
+    RetiredObjects,
     SlotTable,
     anchor_factor,
+    per_distinct,
+    values_at,
 )
 
 X0, X1 = gtsam.symbol("x", 0), gtsam.symbol("x", 1)
@@ -103,3 +107,46 @@ def test_slot_table_queries_and_removal():
     assert table.inside({L0, L1}) == [0, 1]
     with pytest.raises(KeyError):
         table.keys(4)
+
+
+def test_retired_rows_stay_dense_and_follow_their_keys():
+    table = RetiredObjects()
+    for n in range(40):  # past the first growth
+        table.put(gtsam.symbol("l", n), X0 + n % 3, np.array([n, -n]), cov=np.eye(2) * n)
+    assert len(table) == 40
+    assert table.remove(gtsam.symbol("l", 3)) and not table.remove(gtsam.symbol("l", 3))
+    anchor = table.pop(gtsam.symbol("l", 0))
+    assert anchor.keyframe == X0 and anchor.z.tolist() == [0, 0]
+    assert len(table) == 38 and gtsam.symbol("l", 0) not in table
+    keys = [gtsam.symbol("l", n) for n in (39, 3, 38, 7)]
+    rows = table.rows(keys)
+    assert rows[1] == -1 and np.all(rows[[0, 2, 3]] >= 0)
+    np.testing.assert_array_equal(table.local[rows[[0, 2, 3]]], [[39, -39], [38, -38], [7, -7]])
+    np.testing.assert_array_equal(table.cov[rows[3]], np.eye(2) * 7)
+    np.testing.assert_array_equal(table.keyframes[rows[[0, 3]]], [X0, X0 + 1])
+    anchor = table.anchor(keys[0])
+    anchor.z[:] = 0.0  # a copy: the table keeps its own
+    assert table.local[rows[0]].tolist() == [39, -39]
+    table.relocate(np.zeros((38, 2)))
+    assert not np.any(table.local)
+    poses = Retired(3)
+    poses.put(X1, X0, np.array([1.0, 2.0, 0.1]))
+    assert poses.row(X1) == 0 and poses.row(X0) is None
+
+
+def test_values_at_reads_poses_and_points_by_key():
+    values = gtsam.Values()
+    values.insert(X1, gtsam.Pose2(1.0, 2.0, 0.3))
+    values.insert(X0, gtsam.Pose2(4.0, 5.0, -0.2))
+    values.insert(L1, np.array([7.0, 8.0]))
+    values.insert(gtsam.symbol("r", 0), np.array([9.0, 9.5]))
+    poses = values_at(values, np.array([X1, X0, X1], dtype=np.uint64), 3)
+    np.testing.assert_array_equal(poses, [[1.0, 2.0, 0.3], [4.0, 5.0, -0.2], [1.0, 2.0, 0.3]])
+    points = values_at(values, np.array([gtsam.symbol("r", 0), L1], dtype=np.uint64), 2)
+    np.testing.assert_array_equal(points, [[9.0, 9.5], [7.0, 8.0]])
+
+
+def test_per_distinct_calls_once_per_key():
+    calls = []
+    got = per_distinct(np.array([5, 3, 5, 5], dtype=np.uint64), lambda k: calls.append(k) or k * 2)
+    assert got == [10, 6, 10, 10] and calls == [5, 3]

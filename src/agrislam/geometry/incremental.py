@@ -31,7 +31,17 @@ from agrislam.config import RowsConfig, SlamConfig
 from agrislam.geometry.base import BackendBase, pose_array
 from agrislam.geometry.batch import insert_value, solve, value_array
 from agrislam.geometry.graph import POSE, ROW, SurveyGraph, key_index, key_kind, make_factor
-from agrislam.geometry.isam_state import Anchored, Entry, PendingUpdate, SlotTable, anchor_factor
+from agrislam.geometry.isam_state import (
+    Anchored,
+    Entry,
+    PendingUpdate,
+    Retired,
+    RetiredObjects,
+    SlotTable,
+    anchor_factor,
+    per_distinct,
+    values_at,
+)
 from agrislam.geometry.se2 import between, compose, point_jacobian, rotation, to_robot_frame
 
 # conditioning on a keyframe: its prior (m, rad); others only kept from floating away
@@ -78,8 +88,8 @@ class IncrementalBackend(BackendBase):
         self._pending = PendingUpdate()
         self._slots = SlotTable()
         self._guess: dict[int, np.ndarray] = {}  # nodes no factor has used yet
-        self._anchored: dict[int, Anchored] = {}  # retired objects
-        self._retired_pose: dict[int, tuple[int, np.ndarray]] = {}  # key -> (keyframe, rel)
+        self._retired_objects = RetiredObjects()
+        self._retired_poses = Retired(3)  # each pose relative to its keyframe
         self._keyframes: dict[str, list[int]] = {}  # robot -> its keyframes, oldest first
         self._last_seen: dict[int, tuple[str, int]] = {}  # object key -> (robot, step)
         self._cov_cache: dict[int, np.ndarray] = {}
@@ -113,8 +123,7 @@ class IncrementalBackend(BackendBase):
             return
         if key in self._guess:
             value = self._guess.pop(key)
-        elif key in self._anchored:
-            anchor = self._anchored.pop(key)
+        elif (anchor := self._retired_objects.pop(key)) is not None:
             value = compose(self._estimate(anchor.keyframe), np.r_[anchor.z, 0.0])[:2]
             self._push_anchor(key, anchor)
         else:
@@ -151,19 +160,14 @@ class IncrementalBackend(BackendBase):
         self._pending.remove(slots)
         anchors = [e.anchor for e in self._slots.drop(slots) if e.anchor is not None]
         anchors += self._pending.drop_anchors_of(key)
-        if key in self._anchored:
-            anchors.append(self._anchored[key])
+        if (retired := self._retired_objects.pop(key)) is not None:
+            anchors.append(retired)
         if into is not None:
             self._enter(into)
             for anchor in anchors:
                 self._push_anchor(into, anchor)
         self._pending.drop_node(key)
-        for table in (
-            self._guess,
-            self._anchored,
-            self._last_seen,
-            self._cov_cache,
-        ):
+        for table in (self._guess, self._last_seen, self._cov_cache):
             table.pop(key, None)
         self._live.discard(key)
         self._permanent.discard(key)
@@ -176,12 +180,11 @@ class IncrementalBackend(BackendBase):
             if key_kind(key) == POSE:
                 return pose_array(self._isam.calculateEstimatePose2(key))
             return np.asarray(self._isam.calculateEstimatePoint2(key), dtype=float).ravel()
-        if key in self._anchored:
-            anchor = self._anchored[key]
+        if (anchor := self._retired_objects.anchor(key)) is not None:
             return compose(self._estimate(anchor.keyframe), np.r_[anchor.z, 0.0])[:2]
-        if key in self._retired_pose:
-            keyframe, rel = self._retired_pose[key]
-            return compose(self._estimate(keyframe), rel)
+        if (row := self._retired_poses.row(key)) is not None:
+            poses = self._retired_poses
+            return compose(self._estimate(int(poses.keyframes[row])), poses.local[row])
         if key in self._guess:
             return self._guess[key]
         raise KeyError(f"node {gtsam.DefaultKeyFormatter(key)} is not in the graph")
@@ -264,7 +267,7 @@ class IncrementalBackend(BackendBase):
             if key_kind(key) == POSE:
                 keyframe = self._keyframes[self.graph.robot_of(key)][-1]
                 rel = between(value_array(point, keyframe), value_array(point, key))
-                self._retired_pose[key] = (keyframe, rel)
+                self._retired_poses.put(key, keyframe, rel)
                 continue
             robot, step = self._last_seen.get(key, (next(iter(self._keyframes)), self._step))
             frames = self._keyframes[robot]
@@ -286,7 +289,7 @@ class IncrementalBackend(BackendBase):
             for key in keys:
                 z = to_robot_frame(kf_pose, value_array(point, key))
                 cov = rot.T @ marginals.marginalCovariance(key) @ rot
-                self._anchored[key] = Anchored(keyframe, z, cov)
+                self._retired_objects.put(key, keyframe, z, cov=cov)
 
     def _marginal(
         self, graph: gtsam.NonlinearFactorGraph, point: gtsam.Values, window: set[int]
@@ -320,14 +323,20 @@ class IncrementalBackend(BackendBase):
             self._isam.update(graph, solution)
             self._slots.reset(Entry(f.keys, fid) for fid, f in self.graph.factors.items())
             return
-        for key, anchor in self._anchored.items():
-            anchor.z = to_robot_frame(
-                value_array(solution, anchor.keyframe), value_array(solution, key)
-            )
-        for key, (keyframe, _) in self._retired_pose.items():
-            rel = between(value_array(solution, keyframe), value_array(solution, key))
-            self._retired_pose[key] = (keyframe, rel)
+        self._relocate(solution)
         self._refold(solution)
+
+    def _relocate(self, solution: gtsam.Values) -> None:
+        """Every retired node's place relative to its keyframe, taken from `solution`."""
+        poses, objects = self._retired_poses, self._retired_objects
+        frames = values_at(solution, poses.keyframes, 3)
+        poses.relocate(between(frames.T, values_at(solution, poses.keys, 3).T).T)
+        xy, z = values_at(solution, objects.keys, 2), np.empty((len(objects), 2))
+        frames = values_at(solution, objects.keyframes, 3)
+        for keyframe in np.unique(objects.keyframes):
+            rows = objects.keyframes == keyframe
+            z[rows] = to_robot_frame(frames[rows][0], xy[rows])
+        objects.relocate(z)
 
     def _refold(self, solution: gtsam.Values) -> None:
         """Live graph = keyframes and rows with the whole history marginalised onto them
@@ -371,38 +380,45 @@ class IncrementalBackend(BackendBase):
             self._cov_cache[key] = self._isam.marginalCovariance(key)
         return self._cov_cache[key]
 
-    def _split(self, object_ids: np.ndarray) -> tuple[np.ndarray, list[int], list[Anchored]]:
-        """Which of the objects are retired (mask), the keys of the others, the anchors."""
-        retired = np.zeros(len(object_ids), dtype=bool)
-        live, anchors = [], []
-        for n, object_id in enumerate(object_ids):
-            key = self.graph.require_object(int(object_id))
-            anchor = self._anchored.get(key)
-            if anchor is None:
-                live.append(key)
-            else:
-                retired[n] = True
-                anchors.append(anchor)
-        return retired, live, anchors
+    def _frames(self, keyframes: np.ndarray) -> np.ndarray:
+        """(k, 3) current pose of each of `keyframes`, each distinct one read once."""
+        return np.array(per_distinct(keyframes, self._estimate)).reshape(-1, 3)
 
-    def _keyframe_poses(self, anchors: list[Anchored]) -> tuple[np.ndarray, np.ndarray]:
-        """(k, 3) pose of each anchor's keyframe and (k, 2) its z, each keyframe read once."""
-        frames = {a.keyframe for a in anchors}
-        pose = {k: self._estimate(k) for k in frames}
-        return np.array([pose[a.keyframe] for a in anchors]), np.array([a.z for a in anchors])
+    def _placed(self, retired: Retired, rows: np.ndarray) -> np.ndarray:
+        """(k, dim) map-frame estimates of retired rows: keyframe pose (+) local, at once."""
+        if not len(rows):
+            return np.empty((0, retired.dim))
+        local = retired.local[rows]
+        if retired.dim == 2:
+            local = np.column_stack([local, np.zeros(len(local))])
+        return compose(self._frames(retired.keyframes[rows]).T, local.T).T[:, : retired.dim]
+
+    def _split(self, object_ids: np.ndarray) -> tuple[np.ndarray, list[int]]:
+        """The retired-object row of each object (-1: live) and the keys of the live ones."""
+        keys = [self.graph.require_object(int(i)) for i in object_ids]
+        rows = self._retired_objects.rows(keys)
+        return rows, [k for k, r in zip(keys, rows.tolist(), strict=True) if r < 0]
 
     def object_positions(self, object_ids: np.ndarray) -> np.ndarray:
         """(k, 2) current estimates; a retired object's is its keyframe's pose (+) z, all
         at once (a snapshot of a large map asks for every object)."""
-        retired, live, anchors = self._split(object_ids)
+        rows, live = self._split(object_ids)
+        retired = rows >= 0
         out = np.empty((len(object_ids), 2))
         out[~retired] = np.array([self._estimate(k) for k in live]).reshape(-1, 2)
-        if anchors:
-            poses, z = self._keyframe_poses(anchors)
-            c, s = np.cos(poses[:, 2]), np.sin(poses[:, 2])
-            out[retired, 0] = poses[:, 0] + c * z[:, 0] - s * z[:, 1]
-            out[retired, 1] = poses[:, 1] + s * z[:, 0] + c * z[:, 1]
+        out[retired] = self._placed(self._retired_objects, rows[retired])
         return out
+
+    def trajectory(self, robot: str) -> tuple[np.ndarray, np.ndarray]:
+        """Times and (m, 3) poses of the robot; its retired poses placed all at once."""
+        chain = self.graph.robot(robot)
+        rows = self._retired_poses.rows(chain.keys)
+        retired = rows >= 0
+        poses = np.empty((len(chain.keys), 3))
+        live = [k for k, r in zip(chain.keys, rows.tolist(), strict=True) if r < 0]
+        poses[~retired] = np.array([self._estimate(k) for k in live]).reshape(-1, 3)
+        poses[retired] = self._placed(self._retired_poses, rows[retired])
+        return np.array(chain.times), poses
 
     def object_covariances(self, object_ids: np.ndarray) -> np.ndarray:
         """(k, 2, 2) marginal covariances of the given objects, cached until the next step;
@@ -410,21 +426,24 @@ class IncrementalBackend(BackendBase):
         require, pending = self.graph.require_object, self._pending.guess
         if any(pending(require(int(i))) is not None for i in object_ids):
             self._solve_pending()  # entered since the last update (a merge): solve them now
-        retired, live, anchors = self._split(object_ids)
+        rows, live = self._split(object_ids)
+        retired, rows = rows >= 0, rows[rows >= 0]
         out = np.empty((len(object_ids), 2, 2))
         for key in live:
             if key in self._guess:
                 raise ValueError(f"object {key_index(key)} has no observation yet")
         out[~retired] = np.array([self._marginal_covariance(k) for k in live]).reshape(-1, 2, 2)
-        if anchors:
-            poses, z = self._keyframe_poses(anchors)
-            rot = np.stack([rotation(t) for t in poses[:, 2]])
+        if len(rows):
+            objects = self._retired_objects
+            keyframes, z = objects.keyframes[rows], objects.local[rows]
+            theta = self._frames(keyframes)[:, 2]
+            c, s = np.cos(theta), np.sin(theta)
+            rot = np.stack([np.stack([c, -s], axis=-1), np.stack([s, c], axis=-1)], axis=1)
             # l = K (+) z: dl/dxi = R point_jacobian(z) for K Exp(xi) (GTSAM's tangent); dl/dz = R
             jac = rot @ point_jacobian(z)
-            cov_k = np.stack([self._marginal_covariance(a.keyframe) for a in anchors])
-            cov_z = np.stack([a.cov for a in anchors])
+            cov_k = np.stack(per_distinct(keyframes, self._marginal_covariance))
             rot_t = np.swapaxes(rot, 1, 2)
-            out[retired] = jac @ cov_k @ np.swapaxes(jac, 1, 2) + rot @ cov_z @ rot_t
+            out[retired] = jac @ cov_k @ np.swapaxes(jac, 1, 2) + rot @ objects.cov[rows] @ rot_t
         return out
 
     def live_size(self) -> int:

@@ -5,17 +5,20 @@
   node entered since the last update is only here: its estimate is its initial value.
 - `SlotTable`: what each live iSAM2 factor slot holds (a factor of the record, a retired
   object's anchor, or history folded onto keyframes and rows) and the keys it touches.
+- `Retired` / `RetiredObjects`: nodes folded out of iSAM2, each held relative to a
+  keyframe that stays in it, as rows of arrays, so that many are placed at once.
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 
 import gtsam
 import numpy as np
 
 from agrislam.geometry.batch import insert_value
+from agrislam.geometry.graph import POSE
 from agrislam.geometry.noise import gaussian, relative_to_range_bearing
 
 
@@ -185,3 +188,123 @@ class SlotTable:
 
     def __len__(self) -> int:
         return len(self._entries)
+
+
+class Retired:
+    """Nodes folded out of iSAM2, each kept relative to a keyframe that stays in it: row r
+    holds node `keys[r]`, its keyframe `keyframes[r]` and `local[r]`, its place in the
+    keyframe's frame ((3,) relative pose, or (2,) relative position). Rows stay dense: a
+    node that leaves hands its row to the last one."""
+
+    def __init__(self, dim: int) -> None:
+        self.dim = dim
+        self._row: dict[int, int] = {}
+        self._n = 0
+        self._columns: dict[str, np.ndarray] = {
+            "keys": np.zeros(0, dtype=np.uint64),
+            "keyframes": np.zeros(0, dtype=np.uint64),
+            "local": np.zeros((0, dim)),
+        }
+
+    def __len__(self) -> int:
+        return self._n
+
+    def __contains__(self, key: int) -> bool:
+        return key in self._row
+
+    def _column(self, name: str) -> np.ndarray:
+        return self._columns[name][: self._n]
+
+    @property
+    def keys(self) -> np.ndarray:
+        return self._column("keys")
+
+    @property
+    def keyframes(self) -> np.ndarray:
+        return self._column("keyframes")
+
+    @property
+    def local(self) -> np.ndarray:
+        return self._column("local")
+
+    def rows(self, keys: Iterable[int]) -> np.ndarray:
+        """The row of each key, -1 for a node not retired."""
+        return np.fromiter((self._row.get(k, -1) for k in keys), dtype=np.intp)
+
+    def row(self, key: int) -> int | None:
+        return self._row.get(key)
+
+    def put(self, key: int, keyframe: int, local: np.ndarray, **more: np.ndarray) -> None:
+        """Node `key` retires onto `keyframe` at `local` (and the other columns' values)."""
+        row = self._row.get(key)
+        if row is None:
+            row = self._n
+            if row == len(self._columns["keys"]):
+                for name, column in self._columns.items():
+                    grown = np.zeros((max(16, 2 * row), *column.shape[1:]), column.dtype)
+                    grown[:row] = column
+                    self._columns[name] = grown
+            self._row[key] = row
+            self._n += 1
+        for name, value in {"keys": key, "keyframes": keyframe, "local": local, **more}.items():
+            self._columns[name][row] = value
+
+    def remove(self, key: int) -> bool:
+        """Node `key` is no longer retired (back in iSAM2, or gone)."""
+        row = self._row.pop(key, None)
+        if row is None:
+            return False
+        last = self._n - 1
+        if row != last:
+            for column in self._columns.values():
+                column[row] = column[last]
+            self._row[int(self._columns["keys"][row])] = row
+        self._n = last
+        return True
+
+    def relocate(self, local: np.ndarray) -> None:
+        """Every row's new place relative to its keyframe (rows in order)."""
+        self._columns["local"][: self._n] = local
+
+
+class RetiredObjects(Retired):
+    """Retired objects: `local` their position z in the keyframe's frame, `cov[r]` the 2x2
+    covariance of z given the keyframe."""
+
+    def __init__(self) -> None:
+        super().__init__(2)
+        self._columns["cov"] = np.zeros((0, 2, 2))
+
+    @property
+    def cov(self) -> np.ndarray:
+        return self._column("cov")
+
+    def anchor(self, key: int) -> Anchored | None:
+        """A copy of the retired object's anchor, or None if it is not retired."""
+        row = self._row.get(key)
+        if row is None:
+            return None
+        c = self._columns
+        return Anchored(int(c["keyframes"][row]), c["local"][row].copy(), c["cov"][row].copy())
+
+    def pop(self, key: int) -> Anchored | None:
+        anchor = self.anchor(key)
+        self.remove(key)
+        return anchor
+
+
+def values_at(values: gtsam.Values, keys: np.ndarray, dim: int) -> np.ndarray:
+    """(k, dim) the values of `keys` at once: poses (dim 3, POSE keys) or points (dim 2)."""
+    pose = ord(POSE)
+    stored = np.array(values.keys(), dtype=np.uint64)
+    stored = stored[(stored >> np.uint64(56) == pose) == (dim == 3)]
+    table = (gtsam.utilities.extractPose2 if dim == 3 else gtsam.utilities.extractPoint2)(values)
+    return table.reshape(-1, dim)[np.searchsorted(stored, keys)]
+
+
+def per_distinct(keys: np.ndarray, f: Callable[[int], np.ndarray]) -> list[np.ndarray]:
+    """f(key) for each of `keys`, called once per distinct key (a keyframe's pose or
+    marginal, shared by the many nodes retired onto it)."""
+    listed = keys.tolist()
+    once = {k: f(k) for k in dict.fromkeys(listed)}
+    return [once[k] for k in listed]
