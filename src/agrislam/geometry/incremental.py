@@ -77,7 +77,12 @@ def conditioned(
 
 
 class IncrementalBackend(BackendBase):
-    """iSAM2 with keyframes every `slam.window` steps; `window = 0` is plain iSAM2."""
+    """iSAM2 with keyframes every `slam.window` steps; `window = 0` is plain iSAM2.
+
+    Every node is in one place at a time: `_guess` (added, no factor uses it yet), live
+    (in iSAM2, or entering it with the `_pending` update), or retired (`_retired_poses`,
+    `_retired_objects`: held relative to a keyframe). Keyframes and rows stay live
+    (`_permanent`); `_slots` says what each live factor slot of iSAM2 holds."""
 
     def __init__(self, slam: SlamConfig, rows: RowsConfig) -> None:
         super().__init__(slam, rows)
