@@ -9,6 +9,7 @@ import math
 import sys
 from pathlib import Path
 
+import gtsam
 import numpy as np
 import pytest
 
@@ -333,3 +334,61 @@ def test_qr_and_cholesky_reach_the_same_map():
         loop_survey(g)
         maps[factorization] = g.object_positions(g.object_ids())
     np.testing.assert_allclose(maps["qr"], maps["cholesky"], atol=1e-6)
+
+
+def line_survey(g) -> None:
+    """A robot drives 40 steps along a line of plants on both sides, seeing each for a
+    few steps; everything is linear enough that keyframes change nothing."""
+    plants = np.array([[0.5 * i, 1.0 if i % 2 else -1.0] for i in range(30)])
+    g.add_robot("r", np.zeros(3), TIGHT)
+    pose = np.zeros(3)
+    for n in range(40):
+        if n:
+            pose = pose + np.array([0.4, 0.0, 0.0])
+            g.add_odometry("r", float(n), np.array([0.4, 0.0, 0.0]), np.diag([1e-3, 1e-3, 1e-4]))
+        for i, p in enumerate(plants):
+            xy = observe_from(pose, p)
+            if 0 < xy[0] < 2.0:
+                if i not in g.graph.objects:
+                    g.add_object(i, compose_xy(g.current_pose("r"), xy))
+                cov = detection_covariance(xy, 0.05, 0.02)
+                g.add_observation("r", i, RelativePosition(xy, cov))
+        g.update()
+
+
+def test_retired_nodes_are_where_plain_isam2_puts_them():
+    maps = {}
+    for window in (0, 5):
+        g = make_backend(SlamConfig(window=window, refine_turn_deg=0.0), RowsConfig())
+        line_survey(g)
+        maps[window] = (g, g.object_positions(g.object_ids()), g.trajectory("r")[1])
+    keyframes = maps[5][0]
+    assert len(keyframes._retired_objects) >= 20 and len(keyframes._retired_poses) >= 25
+    np.testing.assert_allclose(maps[5][1], maps[0][1], atol=1e-9)
+    np.testing.assert_allclose(maps[5][2], maps[0][2], atol=1e-9)
+
+
+def test_a_retired_objects_covariance_is_its_keyframes_carried_over_plus_its_own():
+    """cov(K (+) z) = J cov_K J^T + R cov_z R^T, J = d(K Exp(xi) (+) z)/d xi, checked one
+    object at a time with a numeric J against the vectorised back end."""
+    g = make_backend(SlamConfig(window=5, refine_turn_deg=0.0), RowsConfig())
+    line_survey(g)
+    ids = g.object_ids()
+    got = g.object_covariances(ids)
+    checked = 0
+    for object_id, cov in zip(ids, got, strict=True):
+        anchor = g._retired_objects.anchor(g.graph.require_object(int(object_id)))
+        if anchor is None:
+            continue
+        pose = gtsam.Pose2(*g._estimate(anchor.keyframe))
+        jac = np.zeros((2, 3))
+        for i in range(3):
+            d = np.zeros(3)
+            d[i] = 1e-6
+            ahead, back = (pose.compose(gtsam.Pose2.Expmap(s * d)) for s in (1, -1))
+            jac[:, i] = (ahead.transformFrom(anchor.z) - back.transformFrom(anchor.z)) / 2e-6
+        rot = rotation(pose.theta())
+        cov_k = g._isam.marginalCovariance(anchor.keyframe)
+        np.testing.assert_allclose(cov, jac @ cov_k @ jac.T + rot @ anchor.cov @ rot.T, rtol=1e-6)
+        checked += 1
+    assert checked >= 20

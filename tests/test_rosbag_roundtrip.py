@@ -116,9 +116,7 @@ def test_delta_odometry_and_continuous_attributes_round_trip(tmp_path: Path) -> 
         for m in d.attributes.values()
     )
     write_survey_bag(want, tmp_path / "delta.mcap")
-    records, report = open_bag(
-        tmp_path / "delta.mcap", bag=BagSourceConfig(odometry_form="delta")
-    )
+    records, report = open_bag(tmp_path / "delta.mcap", bag=BagSourceConfig(odometry_form="delta"))
     assert_same_records(list(records), want)
     assert report.issues == []
 

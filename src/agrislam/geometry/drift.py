@@ -25,14 +25,6 @@ def adjoint(pose: np.ndarray) -> np.ndarray:
     return ad
 
 
-def point_jacobian(xy: np.ndarray) -> np.ndarray:
-    """(m, 2, 3) d(point)/d(left perturbation of its frame) at map points xy (m, 2)."""
-    jac = np.zeros((len(xy), 2, 3))
-    jac[:, 0, 0] = jac[:, 1, 1] = 1.0
-    jac[:, 0, 2], jac[:, 1, 2] = -xy[:, 1], xy[:, 0]
-    return jac
-
-
 def since_seen(
     chain_pose: np.ndarray,
     chain_drift: np.ndarray,
@@ -49,7 +41,7 @@ def since_seen(
     drift = np.where(known[:, None, None], chain_drift - seen_drift, 0.0)
     # the detections in the dead-reckoning frame, where the chain is expressed
     xy_dr = robot_xy @ se2.rotation(chain_pose[2]).T + chain_pose[:2]
-    jac = point_jacobian(xy_dr)  # (m, 2, 3)
+    jac = se2.point_jacobian(xy_dr)  # (m, 2, 3): left perturbation at the points
     cov = np.einsum("mij,kjl,mnl->mkin", jac, drift, jac)
     to_map = se2.rotation(map_heading - chain_pose[2])
     return to_map @ cov @ to_map.T

@@ -46,6 +46,11 @@ def key_index(key: int) -> int:
     return int(gtsam.Symbol(key).index())
 
 
+def robot_index_of(pose: int) -> int:
+    """The index of the robot whose chain holds pose key `pose` (the key layout above)."""
+    return key_index(pose) // POSES_PER_ROBOT
+
+
 @dataclass(slots=True)
 class Factor:
     kind: str
@@ -85,6 +90,11 @@ class SurveyGraph:
             return self.robots[robot]
         except KeyError:
             raise KeyError(f"robot {robot!r} was never added (add_robot first)") from None
+
+    def robot_of(self, pose: int) -> str:
+        """The name of the robot whose chain holds pose key `pose`."""
+        index = robot_index_of(pose)
+        return next(name for name, chain in self.robots.items() if chain.index == index)
 
     def add_robot(self, robot: str, t: float) -> RobotChain:
         if robot in self.robots:

@@ -23,7 +23,6 @@ carries on from that solution; call it at the end of a survey, or when time allo
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 import gtsam
 import numpy as np
@@ -32,8 +31,18 @@ from agrislam.config import RowsConfig, SlamConfig
 from agrislam.geometry.base import BackendBase, pose_array
 from agrislam.geometry.batch import insert_value, solve, value_array
 from agrislam.geometry.graph import POSE, ROW, SurveyGraph, key_index, key_kind, make_factor
-from agrislam.geometry.noise import gaussian, relative_to_range_bearing
-from agrislam.geometry.se2 import between, compose, rotation
+from agrislam.geometry.isam_state import (
+    Anchored,
+    Entry,
+    PendingUpdate,
+    Retired,
+    RetiredObjects,
+    SlotTable,
+    anchor_factor,
+    per_distinct,
+    values_at,
+)
+from agrislam.geometry.se2 import between, compose, point_jacobian, rotation, to_robot_frame
 
 # conditioning on a keyframe: its prior (m, rad); others only kept from floating away
 FIXED_SIGMA = 1e-4
@@ -48,21 +57,6 @@ def isam2(slam: SlamConfig) -> gtsam.ISAM2:
     params.relinearizeSkip = slam.relinearize_skip
     params.setFactorization(slam.factorization.upper())
     return gtsam.ISAM2(params)
-
-
-@dataclass(slots=True)
-class Anchored:
-    """A retired object: at `z` in keyframe `keyframe`'s frame, `cov` the 2x2 marginal
-    covariance of z (from the joint marginal of keyframe and object)."""
-
-    keyframe: int
-    z: np.ndarray
-    cov: np.ndarray
-
-
-def point_in_frame(pose: np.ndarray, xy: np.ndarray) -> np.ndarray:
-    """Map point xy in the frame of pose: R^T (xy - t)."""
-    return rotation(pose[2]).T @ (np.asarray(xy, dtype=float) - pose[:2])
 
 
 def conditioned(
@@ -82,27 +76,13 @@ def conditioned(
     return out
 
 
-def anchor_factor(anchor: Anchored, key: int) -> gtsam.NonlinearFactor:
-    """The retired object's relative position as a factor between its keyframe and it."""
-    bearing, rng, cov_br = relative_to_range_bearing(anchor.z, anchor.cov)
-    return gtsam.BearingRangeFactor2D(
-        anchor.keyframe, key, gtsam.Rot2(bearing), rng, gaussian(cov_br)
-    )
-
-
-@dataclass(slots=True)
-class _Pending:
-    """A factor for the next update: from the record (`fid`) or an anchor of `anchor_of`."""
-
-    factor: gtsam.NonlinearFactor
-    keys: tuple[int, ...]
-    fid: int | None = None
-    anchor_of: int | None = None
-    anchor: Anchored | None = None
-
-
 class IncrementalBackend(BackendBase):
-    """iSAM2 with keyframes every `slam.window` steps; `window = 0` is plain iSAM2."""
+    """iSAM2 with keyframes every `slam.window` steps; `window = 0` is plain iSAM2.
+
+    Every node is in one place at a time: `_guess` (added, no factor uses it yet), live
+    (in iSAM2, or entering it with the `_pending` update), or retired (`_retired_poses`,
+    `_retired_objects`: held relative to a keyframe). Keyframes and rows stay live
+    (`_permanent`); `_slots` says what each live factor slot of iSAM2 holds."""
 
     def __init__(self, slam: SlamConfig, rows: RowsConfig) -> None:
         super().__init__(slam, rows)
@@ -110,17 +90,11 @@ class IncrementalBackend(BackendBase):
         self._isam = isam2(slam)
         self._live: set[int] = set()  # keys in the iSAM2 graph (solved or pending)
         self._permanent: set[int] = set()  # keyframes and row nodes
-        self._pending: list[_Pending | None] = []
-        self._pending_at: dict[int, int] = {}  # fid -> position in self._pending
-        self._pending_values = gtsam.Values()
-        self._pending_guess: dict[int, np.ndarray] = {}
-        self._removals: list[int] = []
-        self._slot: dict[int, int] = {}  # fid -> iSAM2 factor slot
-        self._slot_keys: dict[int, tuple[int, ...]] = {}  # live slot -> its keys
-        self._anchor_slot: dict[int, list[tuple[int, Anchored]]] = {}  # key -> live anchors
+        self._pending = PendingUpdate()
+        self._slots = SlotTable()
         self._guess: dict[int, np.ndarray] = {}  # nodes no factor has used yet
-        self._anchored: dict[int, Anchored] = {}  # retired objects
-        self._retired_pose: dict[int, tuple[int, np.ndarray]] = {}  # key -> (keyframe, rel)
+        self._retired_objects = RetiredObjects()
+        self._retired_poses = Retired(3)  # each pose relative to its keyframe
         self._keyframes: dict[str, list[int]] = {}  # robot -> its keyframes, oldest first
         self._last_seen: dict[int, tuple[str, int]] = {}  # object key -> (robot, step)
         self._cov_cache: dict[int, np.ndarray] = {}
@@ -154,24 +128,16 @@ class IncrementalBackend(BackendBase):
             return
         if key in self._guess:
             value = self._guess.pop(key)
-        elif key in self._anchored:
-            anchor = self._anchored.pop(key)
+        elif (anchor := self._retired_objects.pop(key)) is not None:
             value = compose(self._estimate(anchor.keyframe), np.r_[anchor.z, 0.0])[:2]
             self._push_anchor(key, anchor)
         else:
             raise KeyError(f"node {gtsam.DefaultKeyFormatter(key)} has no estimate to enter with")
-        insert_value(self._pending_values, key, value)
-        self._pending_guess[key] = value
+        self._pending.enter(key, value)
         self._live.add(key)
 
     def _push_anchor(self, key: int, anchor: Anchored) -> None:
-        factor = anchor_factor(anchor, key)
-        self._push(_Pending(factor, (anchor.keyframe, key), anchor_of=key, anchor=anchor))
-
-    def _push(self, pending: _Pending) -> None:
-        if pending.fid is not None:
-            self._pending_at[pending.fid] = len(self._pending)
-        self._pending.append(pending)
+        self._pending.add(anchor_factor(anchor, key), Entry((anchor.keyframe, key), anchor=anchor))
 
     def _add(self, fid: int) -> None:
         factor = self.graph.factors[fid]
@@ -180,69 +146,50 @@ class IncrementalBackend(BackendBase):
         if factor.keys and key_kind(factor.keys[0]) == POSE and len(factor.keys) == 2:
             obj = factor.keys[1]
             if key_kind(obj) != POSE:
-                self._last_seen[obj] = (self._robot_of(factor.keys[0]), self._step)
-        self._push(_Pending(make_factor(factor, self.slam), factor.keys, fid=fid))
-
-    def _robot_of(self, pose: int) -> str:
-        index = gtsam.Symbol(pose).index() // (1 << 40)
-        return next(name for name, chain in self.graph.robots.items() if chain.index == index)
+                self._last_seen[obj] = (self.graph.robot_of(factor.keys[0]), self._step)
+        self._pending.add(make_factor(factor, self.slam), Entry(factor.keys, fid))
 
     def _remove(self, fid: int) -> None:
-        if fid in self._pending_at:
-            self._pending[self._pending_at.pop(fid)] = None
-        elif fid in self._slot:
-            slot = self._slot.pop(fid)
-            self._removals.append(slot)
-            self._slot_keys.pop(slot, None)
+        if not self._pending.drop_factor(fid) and (slot := self._slots.pop_factor(fid)) is not None:
+            self._pending.remove([slot])
 
     def _replace(self, old: int, new: int | None) -> None:
-        live = old in self._pending_at or old in self._slot
+        live = self._pending.has_factor(old) or self._slots.has_factor(old)
         self._remove(old)
         if new is not None and live:
             self._add(new)
 
     def _forget(self, key: int, into: int | None) -> None:
         """Drop a node; merged into `into`, its anchors (or retired position) go along."""
-        anchors = [a for _, a in self._anchor_slot.pop(key, [])]
-        for slot in [s for s, keys in self._slot_keys.items() if key in keys]:
-            self._removals.append(slot)
-            del self._slot_keys[slot]
-        for n, pending in enumerate(self._pending):
-            if pending is not None and pending.anchor_of == key:
-                self._pending[n] = None
-                anchors.append(pending.anchor)
-        if key in self._anchored:
-            anchors.append(self._anchored[key])
+        slots = self._slots.touching({key})
+        self._pending.remove(slots)
+        anchors = [e.anchor for e in self._slots.drop(slots) if e.anchor is not None]
+        anchors += self._pending.drop_anchors_of(key)
+        if (retired := self._retired_objects.pop(key)) is not None:
+            anchors.append(retired)
         if into is not None:
             self._enter(into)
             for anchor in anchors:
                 self._push_anchor(into, anchor)
-        if self._pending_values.exists(key):
-            self._pending_values.erase(key)
-        for table in (
-            self._guess,
-            self._anchored,
-            self._pending_guess,
-            self._last_seen,
-            self._cov_cache,
-        ):
+        self._pending.drop_node(key)
+        for table in (self._guess, self._last_seen, self._cov_cache):
             table.pop(key, None)
         self._live.discard(key)
         self._permanent.discard(key)
 
     def _estimate(self, key: int) -> np.ndarray:
-        if key in self._pending_guess:
-            return self._pending_guess[key]
+        guess = self._pending.guess(key)
+        if guess is not None:
+            return guess
         if key in self._live:
             if key_kind(key) == POSE:
                 return pose_array(self._isam.calculateEstimatePose2(key))
             return np.asarray(self._isam.calculateEstimatePoint2(key), dtype=float).ravel()
-        if key in self._anchored:
-            anchor = self._anchored[key]
+        if (anchor := self._retired_objects.anchor(key)) is not None:
             return compose(self._estimate(anchor.keyframe), np.r_[anchor.z, 0.0])[:2]
-        if key in self._retired_pose:
-            keyframe, rel = self._retired_pose[key]
-            return compose(self._estimate(keyframe), rel)
+        if (row := self._retired_poses.row(key)) is not None:
+            poses = self._retired_poses
+            return compose(self._estimate(int(poses.keyframes[row])), poses.local[row])
         if key in self._guess:
             return self._guess[key]
         raise KeyError(f"node {gtsam.DefaultKeyFormatter(key)} is not in the graph")
@@ -269,29 +216,11 @@ class IncrementalBackend(BackendBase):
         return max(turned, default=0.0)
 
     def _solve_pending(self, extra: gtsam.NonlinearFactorGraph | None = None) -> None:
-        new = gtsam.NonlinearFactorGraph()
-        pending = [p for p in self._pending if p is not None]
-        for p in pending:
-            new.push_back(p.factor)
-        if extra is not None:
-            new.push_back(extra)
-        if new.size() == 0 and not self._removals:
-            return
-        result = self._isam.update(new, self._pending_values, self._removals)
-        slots = list(result.getNewFactorsIndices())
-        for p, slot in zip(pending, slots, strict=False):
-            self._slot_keys[slot] = p.keys
-            if p.fid is not None:
-                self._slot[p.fid] = slot
-            else:
-                self._anchor_slot.setdefault(p.anchor_of, []).append((slot, p.anchor))
-        if extra is not None:
-            for slot, n in zip(slots[len(pending) :], range(extra.size()), strict=True):
-                self._slot_keys[slot] = tuple(extra.at(n).keys())
-        self._pending, self._pending_at, self._removals = [], {}, []
-        self._pending_values = gtsam.Values()
-        self._pending_guess.clear()
-        self._cov_cache.clear()
+        """One iSAM2 update with what is pending (and `extra`'s factors)."""
+        filled = self._pending.flush(self._isam, extra)
+        if filled is not None:
+            self._slots.fill(filled)
+            self._cov_cache.clear()
 
     def _fold(self) -> None:
         """Keyframe each robot's latest pose; marginalise the rest of the window out."""
@@ -303,12 +232,12 @@ class IncrementalBackend(BackendBase):
         window = self._live - self._permanent
         if window:
             self._converge()
-            slots = [s for s, keys in self._slot_keys.items() if not window.isdisjoint(keys)]
+            slots = self._slots.touching(window)
             factors = self._isam.getFactorsUnsafe()
             graph, point = gtsam.NonlinearFactorGraph(), gtsam.Values()
             for slot in slots:
                 graph.push_back(factors.at(slot))
-                for key in self._slot_keys[slot]:
+                for key in self._slots.keys(slot):
                     if not point.exists(key):
                         insert_value(point, key, self._estimate(key))
             self._retire(window, graph, point)
@@ -316,11 +245,8 @@ class IncrementalBackend(BackendBase):
             for key in marginal.keyVector():
                 if key_kind(key) == POSE and key not in self._folded_heading:
                     self._folded_heading[key] = point.atPose2(key).theta()
-            for slot in slots:
-                del self._slot_keys[slot]
-            self._removals.extend(slots)
-            self._slot = {f: s for f, s in self._slot.items() if s in self._slot_keys}
-            self._anchor_slot.clear()
+            self._slots.drop(slots)
+            self._pending.remove(slots)
             self._live -= window
             self._solve_pending(marginal)
         self._window_start = self._step
@@ -344,9 +270,9 @@ class IncrementalBackend(BackendBase):
         anchored: dict[int, list[int]] = {}
         for key in window:
             if key_kind(key) == POSE:
-                keyframe = self._keyframes[self._robot_of(key)][-1]
+                keyframe = self._keyframes[self.graph.robot_of(key)][-1]
                 rel = between(value_array(point, keyframe), value_array(point, key))
-                self._retired_pose[key] = (keyframe, rel)
+                self._retired_poses.put(key, keyframe, rel)
                 continue
             robot, step = self._last_seen.get(key, (next(iter(self._keyframes)), self._step))
             frames = self._keyframes[robot]
@@ -358,18 +284,17 @@ class IncrementalBackend(BackendBase):
         # with the factors already among the blanket's nodes (odometry between keyframes,
         # row spacing): an object seen from two keyframes is known given either
         around = graph.clone()
-        factors, inside = self._isam.getFactorsUnsafe(), set(blanket)
-        for slot, keys in self._slot_keys.items():
-            if inside.issuperset(keys):
-                around.push_back(factors.at(slot))
+        factors = self._isam.getFactorsUnsafe()
+        for slot in self._slots.inside(set(blanket)):
+            around.push_back(factors.at(slot))
         for keyframe, keys in anchored.items():
             marginals = gtsam.Marginals(conditioned(around, point, keyframe, blanket), point)
             kf_pose = value_array(point, keyframe)
             rot = rotation(kf_pose[2])
             for key in keys:
-                z = point_in_frame(kf_pose, value_array(point, key))
+                z = to_robot_frame(kf_pose, value_array(point, key))
                 cov = rot.T @ marginals.marginalCovariance(key) @ rot
-                self._anchored[key] = Anchored(keyframe, z, cov)
+                self._retired_objects.put(key, keyframe, z, cov=cov)
 
     def _marginal(
         self, graph: gtsam.NonlinearFactorGraph, point: gtsam.Values, window: set[int]
@@ -401,23 +326,29 @@ class IncrementalBackend(BackendBase):
         self._cov_cache.clear()
         if not self.window:
             self._isam.update(graph, solution)
-            self._slot = {fid: n for n, fid in enumerate(self.graph.factors)}
-            self._slot_keys = {n: f.keys for n, f in enumerate(self.graph.factors.values())}
+            self._slots.reset(Entry(f.keys, fid) for fid, f in self.graph.factors.items())
             return
-        for key, anchor in self._anchored.items():
-            anchor.z = point_in_frame(
-                value_array(solution, anchor.keyframe), value_array(solution, key)
-            )
-        for key, (keyframe, _) in self._retired_pose.items():
-            rel = between(value_array(solution, keyframe), value_array(solution, key))
-            self._retired_pose[key] = (keyframe, rel)
+        self._relocate(solution)
         self._refold(solution)
+
+    def _relocate(self, solution: gtsam.Values) -> None:
+        """Every retired node's place relative to its keyframe, taken from `solution`."""
+        poses, objects = self._retired_poses, self._retired_objects
+        frames = values_at(solution, poses.keyframes, 3)
+        poses.relocate(between(frames.T, values_at(solution, poses.keys, 3).T).T)
+        xy, z = values_at(solution, objects.keys, 2), np.empty((len(objects), 2))
+        frames = values_at(solution, objects.keyframes, 3)
+        for keyframe in np.unique(objects.keyframes):
+            rows = objects.keyframes == keyframe
+            z[rows] = to_robot_frame(frames[rows][0], xy[rows])
+        objects.relocate(z)
 
     def _refold(self, solution: gtsam.Values) -> None:
         """Live graph = keyframes and rows with the whole history marginalised onto them
         at `solution`, plus the record's factors between them (kept nonlinear)."""
         history, live = gtsam.NonlinearFactorGraph(), gtsam.NonlinearFactorGraph()
-        fids, gone = [], set()
+        fids: list[int | None] = []
+        gone: set[int] = set()
         for fid, factor in self.graph.factors.items():
             if self._permanent.issuperset(factor.keys):
                 fids.append(fid)
@@ -435,9 +366,8 @@ class IncrementalBackend(BackendBase):
         folded = gtsam.LinearContainerFactor.ConvertLinearGraph(remaining, kept)
         live.push_back(folded)
         self._isam.update(live, values)
-        self._slot = {fid: n for n, fid in enumerate(fids)}
-        self._slot_keys = {n: tuple(live.at(n).keys()) for n in range(live.size())}
-        self._anchor_slot.clear()
+        fids.extend([None] * folded.size())
+        self._slots.reset(Entry(tuple(live.at(n).keys()), fid) for n, fid in enumerate(fids))
         self._folded_heading = {
             k: solution.atPose2(k).theta() for k in folded.keyVector() if key_kind(k) == POSE
         }
@@ -446,7 +376,7 @@ class IncrementalBackend(BackendBase):
     # ---------------------------------------------------------------- queries
     def current_pose_covariance(self, robot: str) -> np.ndarray:
         """(3, 3) marginal covariance of the robot's latest pose (x, y, theta)."""
-        if self._pending_guess:
+        if self._pending.has_nodes():
             self._solve_pending()
         return self._marginal_covariance(self.graph.robot(robot).keys[-1])
 
@@ -455,62 +385,70 @@ class IncrementalBackend(BackendBase):
             self._cov_cache[key] = self._isam.marginalCovariance(key)
         return self._cov_cache[key]
 
-    def _split(self, object_ids: np.ndarray) -> tuple[np.ndarray, list[int], list[Anchored]]:
-        """Which of the objects are retired (mask), the keys of the others, the anchors."""
-        retired = np.zeros(len(object_ids), dtype=bool)
-        live, anchors = [], []
-        for n, object_id in enumerate(object_ids):
-            key = self.graph.require_object(int(object_id))
-            anchor = self._anchored.get(key)
-            if anchor is None:
-                live.append(key)
-            else:
-                retired[n] = True
-                anchors.append(anchor)
-        return retired, live, anchors
+    def _frames(self, keyframes: np.ndarray) -> np.ndarray:
+        """(k, 3) current pose of each of `keyframes`, each distinct one read once."""
+        return np.array(per_distinct(keyframes, self._estimate)).reshape(-1, 3)
 
-    def _keyframe_poses(self, anchors: list[Anchored]) -> tuple[np.ndarray, np.ndarray]:
-        """(k, 3) pose of each anchor's keyframe and (k, 2) its z, each keyframe read once."""
-        frames = {a.keyframe for a in anchors}
-        pose = {k: self._estimate(k) for k in frames}
-        return np.array([pose[a.keyframe] for a in anchors]), np.array([a.z for a in anchors])
+    def _placed(self, retired: Retired, rows: np.ndarray) -> np.ndarray:
+        """(k, dim) map-frame estimates of retired rows: keyframe pose (+) local, at once."""
+        if not len(rows):
+            return np.empty((0, retired.dim))
+        local = retired.local[rows]
+        if retired.dim == 2:
+            local = np.column_stack([local, np.zeros(len(local))])
+        return compose(self._frames(retired.keyframes[rows]).T, local.T).T[:, : retired.dim]
+
+    def _split(self, object_ids: np.ndarray) -> tuple[np.ndarray, list[int]]:
+        """The retired-object row of each object (-1: live) and the keys of the live ones."""
+        keys = [self.graph.require_object(int(i)) for i in object_ids]
+        rows = self._retired_objects.rows(keys)
+        return rows, [k for k, r in zip(keys, rows.tolist(), strict=True) if r < 0]
 
     def object_positions(self, object_ids: np.ndarray) -> np.ndarray:
         """(k, 2) current estimates; a retired object's is its keyframe's pose (+) z, all
         at once (a snapshot of a large map asks for every object)."""
-        retired, live, anchors = self._split(object_ids)
+        rows, live = self._split(object_ids)
+        retired = rows >= 0
         out = np.empty((len(object_ids), 2))
         out[~retired] = np.array([self._estimate(k) for k in live]).reshape(-1, 2)
-        if anchors:
-            poses, z = self._keyframe_poses(anchors)
-            c, s = np.cos(poses[:, 2]), np.sin(poses[:, 2])
-            out[retired, 0] = poses[:, 0] + c * z[:, 0] - s * z[:, 1]
-            out[retired, 1] = poses[:, 1] + s * z[:, 0] + c * z[:, 1]
+        out[retired] = self._placed(self._retired_objects, rows[retired])
         return out
+
+    def trajectory(self, robot: str) -> tuple[np.ndarray, np.ndarray]:
+        """Times and (m, 3) poses of the robot; its retired poses placed all at once."""
+        chain = self.graph.robot(robot)
+        rows = self._retired_poses.rows(chain.keys)
+        retired = rows >= 0
+        poses = np.empty((len(chain.keys), 3))
+        live = [k for k, r in zip(chain.keys, rows.tolist(), strict=True) if r < 0]
+        poses[~retired] = np.array([self._estimate(k) for k in live]).reshape(-1, 3)
+        poses[retired] = self._placed(self._retired_poses, rows[retired])
+        return np.array(chain.times), poses
 
     def object_covariances(self, object_ids: np.ndarray) -> np.ndarray:
         """(k, 2, 2) marginal covariances of the given objects, cached until the next step;
         a retired object's combines its keyframe's and its relative position's."""
-        if any(self.graph.require_object(int(i)) in self._pending_guess for i in object_ids):
+        require, pending = self.graph.require_object, self._pending.guess
+        if any(pending(require(int(i))) is not None for i in object_ids):
             self._solve_pending()  # entered since the last update (a merge): solve them now
-        retired, live, anchors = self._split(object_ids)
+        rows, live = self._split(object_ids)
+        retired, rows = rows >= 0, rows[rows >= 0]
         out = np.empty((len(object_ids), 2, 2))
         for key in live:
             if key in self._guess:
                 raise ValueError(f"object {key_index(key)} has no observation yet")
         out[~retired] = np.array([self._marginal_covariance(k) for k in live]).reshape(-1, 2, 2)
-        if anchors:
-            poses, z = self._keyframe_poses(anchors)
-            rot = np.stack([rotation(t) for t in poses[:, 2]])
-            # l = K (+) z: dl/d(dx, dy, dtheta) = R [[1, 0, -z_y], [0, 1, z_x]]; dl/dz = R
-            local = np.zeros((len(z), 2, 3))
-            local[:, 0, 0] = local[:, 1, 1] = 1.0
-            local[:, 0, 2], local[:, 1, 2] = -z[:, 1], z[:, 0]
-            jac = rot @ local
-            cov_k = np.stack([self._marginal_covariance(a.keyframe) for a in anchors])
-            cov_z = np.stack([a.cov for a in anchors])
+        if len(rows):
+            objects = self._retired_objects
+            keyframes, z = objects.keyframes[rows], objects.local[rows]
+            theta = self._frames(keyframes)[:, 2]
+            c, s = np.cos(theta), np.sin(theta)
+            rot = np.stack([np.stack([c, -s], axis=-1), np.stack([s, c], axis=-1)], axis=1)
+            # l = K (+) z: dl/dxi = R point_jacobian(z) for K Exp(xi) (GTSAM's tangent); dl/dz = R
+            jac = rot @ point_jacobian(z)
+            cov_k = np.stack(per_distinct(keyframes, self._marginal_covariance))
             rot_t = np.swapaxes(rot, 1, 2)
-            out[retired] = jac @ cov_k @ np.swapaxes(jac, 1, 2) + rot @ cov_z @ rot_t
+            out[retired] = jac @ cov_k @ np.swapaxes(jac, 1, 2) + rot @ objects.cov[rows] @ rot_t
         return out
 
     def live_size(self) -> int:

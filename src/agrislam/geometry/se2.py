@@ -57,14 +57,28 @@ def to_robot_frame(pose: np.ndarray, xy: np.ndarray) -> np.ndarray:
     return (xy - pose[:2]) @ rotation(pose[2])
 
 
-def pose_uncertainty_at(pose: np.ndarray, pose_cov: np.ndarray, xy: np.ndarray) -> np.ndarray:
-    """(m, 2, 2) map-frame covariance that a pose's (3, 3) uncertainty gives robot-frame
-    points xy (m, 2): J cov J^T with J = d(R(theta) p + t) / d(x, y, theta) = [I, R' p]."""
-    c, s = np.cos(pose[2]), np.sin(pose[2])
-    d_theta = np.column_stack([-s * xy[:, 0] - c * xy[:, 1], c * xy[:, 0] - s * xy[:, 1]])
+def point_jacobian(xy: np.ndarray) -> np.ndarray:
+    """(m, 2, 3) how points xy (m, 2) of a frame move when the frame is perturbed by
+    xi = (dx, dy, dtheta), xi expressed in the frame the points are given in:
+    d(Exp(xi) (+) p) / d xi at xi = 0 = [I, J p] = [[1, 0, -p_y], [0, 1, p_x]].
+
+    The other point Jacobians follow from it, for a pose T = (R, t) and p in its frame:
+    - left perturbation Exp(xi) T, at map points m = T (+) p: point_jacobian(m);
+    - right perturbation T Exp(xi) (GTSAM's Pose2 tangent): R point_jacobian(p);
+    - (dx, dy, dtheta) added to T's (x, y, theta): point_jacobian(R p) (d R / d theta = J R).
+    """
     jac = np.zeros((len(xy), 2, 3))
     jac[:, 0, 0] = jac[:, 1, 1] = 1.0
-    jac[:, :, 2] = d_theta
+    jac[:, 0, 2], jac[:, 1, 2] = -xy[:, 1], xy[:, 0]
+    return jac
+
+
+def pose_uncertainty_at(pose: np.ndarray, pose_cov: np.ndarray, xy: np.ndarray) -> np.ndarray:
+    """(m, 2, 2) map-frame covariance that a pose's (3, 3) uncertainty gives robot-frame
+    points xy (m, 2): J cov J^T with J = d(R(theta) p + t) / d(x, y, theta) = [I, J R p]."""
+    c, s = np.cos(pose[2]), np.sin(pose[2])
+    turned = np.column_stack([c * xy[:, 0] - s * xy[:, 1], s * xy[:, 0] + c * xy[:, 1]])  # R p
+    jac = point_jacobian(turned)
     return jac @ pose_cov @ jac.transpose(0, 2, 1)
 
 

@@ -1,0 +1,310 @@
+"""The incremental back end's state (geometry/incremental.py), in parts with one rule each:
+
+- `PendingUpdate`: what the next iSAM2 update adds (factors, new nodes with their initial
+  values) and removes (factor slots). `flush` hands it to `ISAM2.update` and clears it. A
+  node entered since the last update is only here: its estimate is its initial value.
+- `SlotTable`: what each live iSAM2 factor slot holds (a factor of the record, a retired
+  object's anchor, or history folded onto keyframes and rows) and the keys it touches.
+- `Retired` / `RetiredObjects`: nodes folded out of iSAM2, each held relative to a
+  keyframe that stays in it, as rows of arrays, so that many are placed at once.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass
+
+import gtsam
+import numpy as np
+
+from agrislam.geometry.batch import insert_value
+from agrislam.geometry.graph import POSE
+from agrislam.geometry.noise import gaussian, relative_to_range_bearing
+
+
+@dataclass(slots=True)
+class Anchored:
+    """A retired object: at `z` in keyframe `keyframe`'s frame, `cov` the 2x2 marginal
+    covariance of z (from the joint marginal of keyframe and object)."""
+
+    keyframe: int
+    z: np.ndarray
+    cov: np.ndarray
+
+
+def anchor_factor(anchor: Anchored, key: int) -> gtsam.NonlinearFactor:
+    """The retired object's relative position as a factor between its keyframe and it."""
+    bearing, rng, cov_br = relative_to_range_bearing(anchor.z, anchor.cov)
+    return gtsam.BearingRangeFactor2D(
+        anchor.keyframe, key, gtsam.Rot2(bearing), rng, gaussian(cov_br)
+    )
+
+
+@dataclass(frozen=True, slots=True)
+class Entry:
+    """What a factor slot holds: the `keys` it touches, and where it came from: factor `fid`
+    of the record, the `anchor` of a retired object come back (keys: its keyframe, the
+    object), or neither (history folded onto keyframes and rows)."""
+
+    keys: tuple[int, ...]
+    fid: int | None = None
+    anchor: Anchored | None = None
+
+
+class PendingUpdate:
+    """The next iSAM2 update: factors to add (in order), new nodes and their initial values,
+    slots to remove. Filled between updates, emptied by `flush`."""
+
+    def __init__(self) -> None:
+        self._clear()
+
+    def _clear(self) -> None:
+        self._factors: list[tuple[gtsam.NonlinearFactor, Entry] | None] = []  # None: dropped
+        self._at: dict[int, int] = {}  # fid -> its place in _factors
+        self._values = gtsam.Values()
+        self._guess: dict[int, np.ndarray] = {}  # the same values, as arrays
+        self._removals: list[int] = []
+
+    # ------------------------------------------------------------------- nodes
+    def enter(self, key: int, value: np.ndarray) -> None:
+        """A node new to iSAM2, at `value`."""
+        insert_value(self._values, key, value)
+        self._guess[key] = value
+
+    def guess(self, key: int) -> np.ndarray | None:
+        """The initial value of a node entered since the last update, else None."""
+        return self._guess.get(key)
+
+    def has_nodes(self) -> bool:
+        return bool(self._guess)
+
+    def drop_node(self, key: int) -> None:
+        if self._values.exists(key):
+            self._values.erase(key)
+        self._guess.pop(key, None)
+
+    # ----------------------------------------------------------------- factors
+    def add(self, factor: gtsam.NonlinearFactor, entry: Entry) -> None:
+        if entry.fid is not None:
+            self._at[entry.fid] = len(self._factors)
+        self._factors.append((factor, entry))
+
+    def has_factor(self, fid: int) -> bool:
+        return fid in self._at
+
+    def drop_factor(self, fid: int) -> bool:
+        """Take record factor `fid` back out; False if it is not pending."""
+        at = self._at.pop(fid, None)
+        if at is None:
+            return False
+        self._factors[at] = None
+        return True
+
+    def drop_anchors_of(self, key: int) -> list[Anchored]:
+        """Take the pending anchors of object `key` back out; returns them."""
+        anchors = []
+        for n, pending in enumerate(self._factors):
+            entry = None if pending is None else pending[1]
+            if entry is not None and entry.anchor is not None and entry.keys[1] == key:
+                self._factors[n] = None
+                anchors.append(entry.anchor)
+        return anchors
+
+    def remove(self, slots: Iterable[int]) -> None:
+        """Factor slots of iSAM2 to remove at the next update."""
+        self._removals.extend(slots)
+
+    # ------------------------------------------------------------------- flush
+    def flush(
+        self, isam: gtsam.ISAM2, extra: gtsam.NonlinearFactorGraph | None = None
+    ) -> list[tuple[int, Entry]] | None:
+        """One `ISAM2.update` with everything pending (and the factors of `extra`, which
+        hold no record factor or anchor); then empty. Returns the slot each new factor
+        got with its entry, or None when there was nothing to do."""
+        entries = [p for p in self._factors if p is not None]
+        new = gtsam.NonlinearFactorGraph()
+        for factor, _ in entries:
+            new.push_back(factor)
+        filled = [entry for _, entry in entries]
+        if extra is not None:
+            new.push_back(extra)
+            filled.extend(Entry(tuple(extra.at(n).keys())) for n in range(extra.size()))
+        if new.size() == 0 and not self._removals:
+            return None
+        result = isam.update(new, self._values, self._removals)
+        slots = list(result.getNewFactorsIndices())
+        self._clear()
+        return list(zip(slots, filled, strict=True))
+
+
+class SlotTable:
+    """The live factor slots of iSAM2 and what each holds (in the order they were filled),
+    with record factor id -> slot for the record's factors among them."""
+
+    def __init__(self) -> None:
+        self._entries: dict[int, Entry] = {}
+        self._slot_of: dict[int, int] = {}  # fid -> slot
+
+    def fill(self, filled: Iterable[tuple[int, Entry]]) -> None:
+        for slot, entry in filled:
+            self._entries[slot] = entry
+            if entry.fid is not None:
+                self._slot_of[entry.fid] = slot
+
+    def reset(self, entries: Iterable[Entry]) -> None:
+        """A new iSAM2 was given these factors in this order: slots 0, 1, ..."""
+        self._entries.clear()
+        self._slot_of.clear()
+        self.fill(enumerate(entries))
+
+    def has_factor(self, fid: int) -> bool:
+        return fid in self._slot_of
+
+    def pop_factor(self, fid: int) -> int | None:
+        """The slot of record factor `fid`, no longer live; None if it has none."""
+        slot = self._slot_of.pop(fid, None)
+        if slot is not None:
+            self._entries.pop(slot, None)
+        return slot
+
+    def keys(self, slot: int) -> tuple[int, ...]:
+        return self._entries[slot].keys
+
+    def touching(self, keys: set[int]) -> list[int]:
+        """The slots with any of `keys`."""
+        return [s for s, e in self._entries.items() if not keys.isdisjoint(e.keys)]
+
+    def inside(self, keys: set[int]) -> list[int]:
+        """The slots with only `keys`."""
+        return [s for s, e in self._entries.items() if keys.issuperset(e.keys)]
+
+    def drop(self, slots: Iterable[int]) -> list[Entry]:
+        """The slots are no longer live; returns what they held."""
+        dropped = [self._entries.pop(s) for s in slots]
+        for entry in dropped:
+            if entry.fid is not None:
+                self._slot_of.pop(entry.fid, None)
+        return dropped
+
+    def __len__(self) -> int:
+        return len(self._entries)
+
+
+class Retired:
+    """Nodes folded out of iSAM2, each kept relative to a keyframe that stays in it: row r
+    holds node `keys[r]`, its keyframe `keyframes[r]` and `local[r]`, its place in the
+    keyframe's frame ((3,) relative pose, or (2,) relative position). Rows stay dense: a
+    node that leaves hands its row to the last one."""
+
+    def __init__(self, dim: int) -> None:
+        self.dim = dim
+        self._row: dict[int, int] = {}
+        self._n = 0
+        self._columns: dict[str, np.ndarray] = {
+            "keys": np.zeros(0, dtype=np.uint64),
+            "keyframes": np.zeros(0, dtype=np.uint64),
+            "local": np.zeros((0, dim)),
+        }
+
+    def __len__(self) -> int:
+        return self._n
+
+    def __contains__(self, key: int) -> bool:
+        return key in self._row
+
+    def _column(self, name: str) -> np.ndarray:
+        return self._columns[name][: self._n]
+
+    @property
+    def keys(self) -> np.ndarray:
+        return self._column("keys")
+
+    @property
+    def keyframes(self) -> np.ndarray:
+        return self._column("keyframes")
+
+    @property
+    def local(self) -> np.ndarray:
+        return self._column("local")
+
+    def rows(self, keys: Iterable[int]) -> np.ndarray:
+        """The row of each key, -1 for a node not retired."""
+        return np.fromiter((self._row.get(k, -1) for k in keys), dtype=np.intp)
+
+    def row(self, key: int) -> int | None:
+        return self._row.get(key)
+
+    def put(self, key: int, keyframe: int, local: np.ndarray, **more: np.ndarray) -> None:
+        """Node `key` retires onto `keyframe` at `local` (and the other columns' values)."""
+        row = self._row.get(key)
+        if row is None:
+            row = self._n
+            if row == len(self._columns["keys"]):
+                for name, column in self._columns.items():
+                    grown = np.zeros((max(16, 2 * row), *column.shape[1:]), column.dtype)
+                    grown[:row] = column
+                    self._columns[name] = grown
+            self._row[key] = row
+            self._n += 1
+        for name, value in {"keys": key, "keyframes": keyframe, "local": local, **more}.items():
+            self._columns[name][row] = value
+
+    def remove(self, key: int) -> bool:
+        """Node `key` is no longer retired (back in iSAM2, or gone)."""
+        row = self._row.pop(key, None)
+        if row is None:
+            return False
+        last = self._n - 1
+        if row != last:
+            for column in self._columns.values():
+                column[row] = column[last]
+            self._row[int(self._columns["keys"][row])] = row
+        self._n = last
+        return True
+
+    def relocate(self, local: np.ndarray) -> None:
+        """Every row's new place relative to its keyframe (rows in order)."""
+        self._columns["local"][: self._n] = local
+
+
+class RetiredObjects(Retired):
+    """Retired objects: `local` their position z in the keyframe's frame, `cov[r]` the 2x2
+    covariance of z given the keyframe."""
+
+    def __init__(self) -> None:
+        super().__init__(2)
+        self._columns["cov"] = np.zeros((0, 2, 2))
+
+    @property
+    def cov(self) -> np.ndarray:
+        return self._column("cov")
+
+    def anchor(self, key: int) -> Anchored | None:
+        """A copy of the retired object's anchor, or None if it is not retired."""
+        row = self._row.get(key)
+        if row is None:
+            return None
+        c = self._columns
+        return Anchored(int(c["keyframes"][row]), c["local"][row].copy(), c["cov"][row].copy())
+
+    def pop(self, key: int) -> Anchored | None:
+        anchor = self.anchor(key)
+        self.remove(key)
+        return anchor
+
+
+def values_at(values: gtsam.Values, keys: np.ndarray, dim: int) -> np.ndarray:
+    """(k, dim) the values of `keys` at once: poses (dim 3, POSE keys) or points (dim 2)."""
+    pose = ord(POSE)
+    stored = np.array(values.keys(), dtype=np.uint64)
+    stored = stored[(stored >> np.uint64(56) == pose) == (dim == 3)]
+    table = (gtsam.utilities.extractPose2 if dim == 3 else gtsam.utilities.extractPoint2)(values)
+    return table.reshape(-1, dim)[np.searchsorted(stored, keys)]
+
+
+def per_distinct(keys: np.ndarray, f: Callable[[int], np.ndarray]) -> list[np.ndarray]:
+    """f(key) for each of `keys`, called once per distinct key (a keyframe's pose or
+    marginal, shared by the many nodes retired onto it)."""
+    listed = keys.tolist()
+    once = {k: f(k) for k in dict.fromkeys(listed)}
+    return [once[k] for k in listed]
