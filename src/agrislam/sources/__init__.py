@@ -44,7 +44,8 @@ def open_source(
 ) -> Source:
     """The source of a survey log, a ROS bag or a ``sim:`` URI.
 
-    `config`: the run's configuration (a bag's schema, label map and sensor defaults).
+    `config`: the run's configuration (a bag's schema, label map and sensor defaults; the
+    bounds of every value, `sensor.limits`).
     `strict`: a survey log stops at its first bad line (`SourceError`) instead of skipping
     it; a bag reports bad input and reads on either way. `bag`: the bag's topics (a
     config file's ``bag:`` section); `sim`: the simulator's settings under the URI's
@@ -67,7 +68,7 @@ def open_source(
     if is_log:
         from agrislam.sources.jsonl import read_log
 
-        return read_log(path, strict=strict)
+        return read_log(path, strict=strict, config=config)
     if is_bag:
         from agrislam.sources.bag_config import BagSourceConfig
         from agrislam.sources.rosbag import BagSource
