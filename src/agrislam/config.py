@@ -503,14 +503,17 @@ def load_mapping(path: str | Path) -> dict[str, Any]:
     path = Path(path)
     text = path.read_text(encoding="utf-8")
     suffix = path.suffix.lower()
-    if suffix == ".toml":
-        data = tomllib.loads(text)
-    elif suffix == ".json":
-        data = json.loads(text)
-    elif suffix in (".yaml", ".yml"):
-        data = yaml.safe_load(text)
-    else:
+    parsers = {".toml": tomllib.loads, ".json": json.loads, ".yaml": yaml.safe_load}
+    parse = parsers.get(".yaml" if suffix == ".yml" else suffix)
+    if parse is None:
         raise ValueError(f"{path}: unknown config format {suffix!r} (use .yaml, .toml or .json)")
+    try:
+        data = parse(text)
+    except (ValueError, yaml.YAMLError) as err:  # TOML and JSON errors are ValueErrors
+        where = getattr(err, "problem_mark", None)
+        at = f" at line {where.line + 1}, column {where.column + 1}" if where else ""
+        what = getattr(err, "problem", None) or str(err).splitlines()[0]
+        raise ValueError(f"{path}: not valid {suffix[1:].upper()}{at}: {what}") from None
     if not isinstance(data, dict):
         raise ValueError(f"{path}: expected a mapping at the top level")
     return data

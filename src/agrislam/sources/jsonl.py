@@ -11,6 +11,7 @@ from __future__ import annotations
 import gzip
 import json
 import math
+import re
 from collections.abc import Iterator
 from pathlib import Path
 from typing import IO, Any
@@ -51,6 +52,9 @@ __all__ = ["REASONS", "LogError", "LogReader", "ReadReport", "read_log"]
 VERSION = 1
 # the start-pose std a robot gets when meta gives a start_pose without start_sigma (m, m, rad)
 DEFAULT_START_SIGMA = (0.01, 0.01, 0.005)
+# an odometry line that cannot be decoded still tells whose motion it held
+_ODOM = re.compile(r'"type"\s*:\s*"odom"')
+_ROBOT = re.compile(r'"robot"\s*:\s*"([^"\\]{1,200})"')
 BOM = "\ufeff"  # a UTF-8 byte order mark before the first line is accepted (docs/log-format.md)
 
 
@@ -417,6 +421,7 @@ class LogReader:
                 continue
             except LogError as err:
                 self._bad(err)
+                self._lost_odometry_line(raw)
                 continue
             if isinstance(rec, (Meta, TruthObject)):
                 yield from self._yield([(n, rec)])
@@ -434,6 +439,14 @@ class LogReader:
         if isinstance(robot, str):
             ok = isinstance(t, (int, float)) and not isinstance(t, bool)
             self._gaps.rejected(robot, float(t) if ok and abs(t) < 1e300 else None, None)
+
+    def _lost_odometry_line(self, raw: bytes | str | None) -> None:
+        """A line that is not JSON but names an odometry record and its robot: bridged."""
+        if raw is None:
+            return
+        text = raw.decode("utf-8", "replace") if isinstance(raw, bytes) else raw
+        if _ODOM.search(text) and (robot := _ROBOT.search(text)):
+            self._gaps.rejected(robot[1], None, None)
 
     def _decode(self, n: int, raw: bytes | str | None, first: bool) -> Any:
         """The line's JSON value, None for a blank or comment line; LogError if it is not
