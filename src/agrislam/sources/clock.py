@@ -29,6 +29,7 @@ class Rejected(Generic[Item]):
     item: Item
     reason: str  # time_backwards or time_jump
     message: str
+    key: Hashable = None
 
 
 @dataclass
@@ -44,13 +45,13 @@ class _Clock(Generic[Item]):
 
 
 class RobotClocks(Generic[Item]):
-    """Per-key (robot, topic) time checks over a stream of (key, t, item).
+    """Per-key (robot, or a bag's topic: `noun`) time checks over a stream of (key, t, item).
 
     `offer` returns the items released in order (an item held earlier may come out with
     the current one) and those rejected; `finish` rejects what is still held."""
 
-    def __init__(self, limits: InputLimits) -> None:
-        self.limits = limits
+    def __init__(self, limits: InputLimits, noun: str = "robot") -> None:
+        self.limits, self.noun = limits, noun
         self.clocks: dict[Hashable, _Clock[Item]] = {}
 
     def offer(self, key: Hashable, t: float, item: Item) -> tuple[list[Item], list[Rejected]]:
@@ -64,13 +65,14 @@ class RobotClocks(Generic[Item]):
                 clock.accept(held_t)
                 released.append(held)
             else:
-                rejected.append(Rejected(held, "time_jump", self._spike(key, held_t, t)))
+                rejected.append(Rejected(held, "time_jump", self._spike(key, held_t, t), key))
         if clock.last is not None and t < clock.last:
             rejected.append(
                 Rejected(
                     item,
                     "time_backwards",
-                    f"robot {key!r}: t = {t} after t = {clock.last}",
+                    f"{self.noun} {key!r}: t = {t} after t = {clock.last}",
+                    key,
                 )
             )
         elif clock.last is not None and t - clock.last > self._far(clock):
@@ -87,23 +89,20 @@ class RobotClocks(Generic[Item]):
             if clock.held is not None:
                 held_t, held = clock.held
                 clock.held = None
-                out.append(
-                    Rejected(
-                        held,
-                        "time_jump",
-                        f"robot {key!r}: t = {held_t} is {held_t - (clock.last or 0.0):.6g} s "
-                        "after its previous record and no later record of it follows on",
-                    )
+                ahead = held_t - (clock.last or 0.0)
+                message = (
+                    f"{self.noun} {key!r}: t = {held_t} is {ahead:.6g} s after the previous "
+                    "record and no later record follows on from it"
                 )
+                out.append(Rejected(held, "time_jump", message, key))
         return out
 
     def _far(self, clock: _Clock) -> float:
         typical = median(clock.intervals) if clock.intervals else 0.0
         return max(self.limits.time_jump_s, self.limits.time_jump_factor * typical)
 
-    @staticmethod
-    def _spike(key: Hashable, held_t: float, t: float) -> str:
+    def _spike(self, key: Hashable, held_t: float, t: float) -> str:
         return (
-            f"robot {key!r}: t = {held_t} is a time spike: the robot's next record is at "
+            f"{self.noun} {key!r}: t = {held_t} is a time spike: the next record is at "
             f"t = {t}, before it"
         )
