@@ -96,17 +96,17 @@ def _array(obj: dict, key: str, shape: tuple[int, ...], *, required: bool = True
             raise BadRecordError("missing_field", f"'{key}' is missing")
         return None
     v = obj[key]
-    if not _nested_lists(v, len(shape)) or np.shape(v) != shape:
+    if not _has_shape(v, shape):
         raise BadRecordError("bad_value", f"'{key}' must have shape {shape}, got {_short(v)}")
     flat = v if len(shape) == 1 else [x for row in v for x in row]
     return np.array([_real(x, f"'{key}' entry") for x in flat], dtype=float).reshape(shape)
 
 
-def _nested_lists(v: Any, depth: int) -> bool:
-    """Whether v is lists nested `depth` deep (so that np.shape reads it without work)."""
-    if not isinstance(v, list):
-        return False
-    return depth == 1 or all(_nested_lists(x, depth - 1) for x in v)
+def _has_shape(v: Any, shape: tuple[int, ...]) -> bool:
+    """Whether v is JSON lists nested to `shape` (each entry checked as a number later)."""
+    if not shape:
+        return not isinstance(v, (list, dict))
+    return isinstance(v, list) and len(v) == shape[0] and all(_has_shape(x, shape[1:]) for x in v)
 
 
 def _covariance(obj: dict, key: str, n: int) -> np.ndarray | None:
@@ -154,6 +154,8 @@ class _Parser:
         if not isinstance(obj, dict):
             raise BadRecordError("not_json", f"expected a JSON object, got {type(obj).__name__}")
         kind = obj.get("type")
+        if not isinstance(kind, str):
+            raise BadRecordError("unknown_type", f"'type' must be a string, got {_short(kind)}")
         handler = {
             "meta": self._meta,
             "odom": self._odom,
