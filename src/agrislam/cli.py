@@ -8,6 +8,7 @@ usable data, 130 for Ctrl-C. A traceback only with `agrislam --debug ...`."""
 from __future__ import annotations
 
 import json
+import signal
 from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -37,6 +38,7 @@ app = typer.Typer(
 )
 console = Console()
 DEBUG = {"on": False}  # set by the global --debug option
+STOP = {"requested": False}  # set by Ctrl-C or SIGTERM during a run
 
 
 def _version(value: bool) -> None:
@@ -139,13 +141,45 @@ def _survey(
                 _record(records, record)
                 console.print(f"recorded the survey to [bold]{escape(str(record))}[/]")
             try:
-                result = _run(records, cfg, folder, f"mapping {source.name}")
+                with _stop_between_records():
+                    result = _run(records, cfg, folder, f"mapping {source.name}")
             except RunError as err:
                 _stopped(err, source, out, strict)
     console.print(source.report.summary(), markup=False, soft_wrap=True)
     _summary(result, out)
     if not result.usable:
         _fail(f"{source.name}: no usable data (no odometry or detections were read)", 1)
+
+
+@contextmanager
+def _stop_between_records() -> Iterator[None]:
+    """Ctrl-C or SIGTERM (a scheduler stopping the run) ends the run after the record in
+    hand, so the map written of what was read is whole; a second one stops at once.
+    (kill -9 cannot be caught: the outputs are atomic, and the lock is the OS's.)"""
+
+    def request(signum: int, frame: Any) -> None:
+        if STOP["requested"]:
+            raise KeyboardInterrupt
+        STOP["requested"] = True
+
+    STOP["requested"] = False
+    try:
+        previous = {sig: signal.signal(sig, request) for sig in (signal.SIGINT, signal.SIGTERM)}
+    except ValueError:  # not the main thread: signals stay as they are
+        yield
+        return
+    try:
+        yield
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+
+
+def _advance(progress: Progress, task: Any) -> None:
+    """After each record: the progress bar, and a requested stop."""
+    progress.advance(task)
+    if STOP["requested"]:
+        raise KeyboardInterrupt
 
 
 @contextmanager
@@ -206,11 +240,10 @@ def _stopped(err: RunError, source: Source, out: Path, strict: bool) -> NoReturn
         console.print("[red]interrupted[/]")
     else:
         console.print(f"[red]the run stopped: {escape(describe(cause or err))}[/]", soft_wrap=True)
-    n = sum(result.records.values())
     if result.outputs:
         console.print(
-            f"the map of the {n} records read before it is in [bold]{escape(str(out))}[/]: "
-            + ", ".join(p.name for p in result.outputs),
+            f"the map of the {result.n_frames} frames before it is in "
+            f"[bold]{escape(str(out))}[/]: " + ", ".join(p.name for p in result.outputs),
             soft_wrap=True,
         )
     else:
@@ -255,7 +288,7 @@ def _run(
         transient=True,
     ) as progress:
         task = progress.add_task(what, total=total)
-        return run_survey(records, WorldModel(cfg), out, lambda: progress.advance(task))
+        return run_survey(records, WorldModel(cfg), out, lambda: _advance(progress, task))
 
 
 def _record(records: list[Record], path: Path) -> None:
