@@ -30,7 +30,7 @@ from agrislam.world import WorldModel
 from log_mutations import N_KINDS, as_log, mutate
 
 SMALL = {"field": {"n_plants": 30, "n_rows": 3}, "seed": 2}
-FUZZ = settings(max_examples=250, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+FUZZ = settings(max_examples=120, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 mutation = st.tuples(st.integers(0, 10_000), st.integers(0, 10_000), st.integers(0, N_KINDS - 1))
 
 
@@ -81,7 +81,7 @@ def test_random_bytes_read_as_a_log(data):
     _read_both_ways(data)
 
 
-@settings(max_examples=150, deadline=None)
+@settings(max_examples=100, deadline=None)
 @given(st.lists(st.from_type(object).map(repr) | st.text(max_size=200), max_size=20))
 def test_random_lines_read_as_a_log(texts):
     _read_both_ways("\n".join(texts).encode("utf-8", "replace"))
@@ -100,7 +100,7 @@ def _open_bag(path: Path) -> None:
         assert getattr(err, "fatal", False)
 
 
-@settings(max_examples=60, deadline=None)
+@settings(max_examples=40, deadline=None)
 @given(st.binary(max_size=2000), st.sampled_from([".mcap", ".bag", ".db3"]))
 def test_random_bytes_named_as_a_bag(data, suffix):
     with tempfile.TemporaryDirectory() as folder:
@@ -109,7 +109,7 @@ def test_random_bytes_named_as_a_bag(data, suffix):
         _open_bag(path)
 
 
-@settings(max_examples=40, deadline=None)
+@settings(max_examples=30, deadline=None)
 @given(st.floats(0.0, 1.0), st.integers(0, 255), st.booleans())
 def test_a_cut_or_damaged_mcap_bag_is_salvaged_or_refused(small_bag, where, byte, cut):
     """A bag cut off anywhere (or with one byte changed): what is readable is read."""
@@ -121,7 +121,7 @@ def test_a_cut_or_damaged_mcap_bag_is_salvaged_or_refused(small_bag, where, byte
         _open_bag(path)
 
 
-@settings(max_examples=4, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@settings(max_examples=3, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(mutation)
 def test_the_pipeline_on_a_mutated_log_ends_with_its_outputs(lines, change):
     data = as_log(mutate(lines, *change))

@@ -67,7 +67,7 @@ def test_map_sqlite_killed_while_it_is_written_stays_a_whole_database(tmp_path, 
         while True:
             save_map(snapshot, {str(path)!r})
     """
-    for delay in (0.05, 0.17, 0.29, 0.43):
+    for delay in (0.05, 0.2, 0.35):
         proc = _python(writer)
         _wait_for(path)
         time.sleep(delay)
