@@ -144,7 +144,7 @@ def _survey(
                 with _stop_between_records():
                     result = _run(records, cfg, folder, f"mapping {source.name}")
             except RunError as err:
-                _stopped(err, source, out, strict)
+                _stopped(err, out, strict)
     console.print(source.report.summary(), markup=False, soft_wrap=True)
     _summary(result, out)
     if not result.usable:
@@ -225,7 +225,7 @@ def _problem(error: Any) -> str:
     return f"{key}: {what}{got}"
 
 
-def _stopped(err: RunError, source: Source, out: Path, strict: bool) -> NoReturn:
+def _stopped(err: RunError, out: Path, strict: bool) -> NoReturn:
     """A run that stopped: why, what it read, and what of it was written."""
     result, cause = err.result, err.__cause__
     if DEBUG["on"] and not isinstance(cause, SourceError):
@@ -238,8 +238,12 @@ def _stopped(err: RunError, source: Source, out: Path, strict: bool) -> NoReturn
         console.print(f"[red]{escape(str(cause))}[/]{hint}", soft_wrap=True)
     elif isinstance(cause, KeyboardInterrupt):
         console.print("[red]interrupted[/]")
-    else:
-        console.print(f"[red]the run stopped: {escape(describe(cause or err))}[/]", soft_wrap=True)
+    else:  # not the input's fault: an error of agrislam itself
+        console.print(
+            f"[red]the run stopped: {escape(describe(cause or err))}[/] (run again with "
+            "--debug for the traceback, and please report it)",
+            soft_wrap=True,
+        )
     if result.outputs:
         console.print(
             f"the map of the {result.n_frames} frames before it is in "

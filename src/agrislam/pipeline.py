@@ -107,7 +107,7 @@ def describe(error: BaseException) -> str:
 def run_survey(
     records: Iterable[Record] | Source,
     world: WorldModel,
-    out_dir: Path | RunFolder | None = None,
+    out_dir: str | Path | RunFolder | None = None,
     progress: Callable[[], None] | None = None,
     *,
     force: bool = False,
@@ -120,14 +120,11 @@ def run_survey(
     outputs), or a `RunFolder` the caller holds. Whatever stops the run (a bad line in
     strict mode, an error of the core, Ctrl-C), the map of the records before it is
     written and `RunError` raised with the result."""
-    folder = RunFolder(out_dir, force=force) if isinstance(out_dir, Path) else out_dir
-    if isinstance(out_dir, Path) and folder is not None:
-        folder.open()
-    try:
-        result = _run(records, world, folder, progress)
-    finally:
-        if isinstance(out_dir, Path) and folder is not None:
-            folder.close()
+    if isinstance(out_dir, (str, Path)):
+        with RunFolder(out_dir, force=force) as folder:
+            result = _run(records, world, folder, progress)
+    else:
+        result = _run(records, world, out_dir, progress)
     if result.error is not None:
         raise RunError(result) from result.error
     return result
