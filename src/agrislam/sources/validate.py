@@ -110,7 +110,7 @@ def check_covariance(cov: np.ndarray, what: str, limits: InputLimits) -> np.ndar
         raise BadRecordError("bad_covariance", f"{what} is all zeros (no uncertainty at all)")
     if float(np.abs(c - c.T).max()) > limits.symmetry_tolerance * scale:
         raise BadRecordError("bad_covariance", f"{what} is not symmetric: {_short(c)}")
-    c = 0.5 * (c + c.T)
+    c = 0.5 * c + 0.5 * c.T  # halves first: entries near the float limit do not overflow
     variances = np.diag(c)
     if variances.min() < limits.min_variance:
         raise BadRecordError(
