@@ -15,6 +15,7 @@ from agrislam.sim.simulator import Simulator
 from agrislam.sinks.rosbag import write_survey_bag
 from agrislam.sources import open_source
 from agrislam.sources.jsonl import LogError
+from agrislam.sources.rosbag import BagSource
 from test_rosbag_inputs import bag, kinds, odom, read
 
 
@@ -94,3 +95,12 @@ def test_a_bad_meta_record_stops_the_bag(tmp_path):
     with pytest.raises(LogError, match=r"/agrislam/meta:1: out_of_bounds: anchor\.lat") as err:
         read(tmp_path / "b.mcap")
     assert err.value.fatal
+
+
+def test_a_truncated_sqlite_bag_says_how_to_rescue_it(survey_bag, tmp_path):
+    folder = tmp_path / "db"
+    write_survey_bag(list(BagSource(survey_bag).records()), folder, "sqlite3")
+    db = next(folder.glob("*.db3"))
+    db.write_bytes(db.read_bytes()[: db.stat().st_size // 2])
+    with pytest.raises(ValueError, match=r"malformed.*\.recover"):
+        open_source(folder)

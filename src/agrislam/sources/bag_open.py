@@ -184,7 +184,10 @@ def explain(path: Path, err: BaseException) -> str:
                 else "; it holds no .mcap or .db3 file either: is it a bag?"
             )
             return f"{path}: a rosbag2 folder needs its metadata.yaml and this one has none{hint}"
-        return f"{path}: not a readable rosbag2 folder ({text}); check it with `ros2 bag info`"
+        return (
+            f"{path}: not a readable rosbag2 folder ({text}); check it with `ros2 bag info`"
+            + _recover(text)
+        )
     if path.stat().st_size == 0:
         return f"{path} is empty: record or copy the bag again"
     suffix = path.suffix.lower()
@@ -196,8 +199,17 @@ def explain(path: Path, err: BaseException) -> str:
     if suffix == ".db3":
         return (
             f"{path} is not a rosbag2 SQLite bag, or a damaged one ({text}); check it with "
-            "`ros2 bag info`"
+            f"`ros2 bag info`{_recover(text)}"
         )
     if suffix == ".mcap":
         return f"{path} is not an MCAP bag, or a damaged one ({text}); check it with `mcap doctor`"
     return f"{path}: not a readable ROS bag ({text})"
+
+
+def _recover(text: str) -> str:
+    """The way to rescue a damaged (truncated) SQLite database, when that is the error."""
+    if "malformed" not in text:
+        return ""
+    return (
+        "; the sqlite3 tool can rescue what is left: `sqlite3 BAG.db3 .recover | sqlite3 new.db3`"
+    )
