@@ -228,6 +228,11 @@ def _stops_in_either_mode(lines):
             "size",
         ),
         ({"type": "meta", "anchor": {"lat": 95.0, "lon": 5.0}}, "out_of_bounds", "anchor.lat"),
+        (  # found by benchmarks/fuzz_logs.py: a TypeError escaped
+            {"type": "meta", "schema": {"attributes": {"size": {"kind": ["discrete"]}}}},
+            "bad_schema",
+            "unknown kind ['discrete']",
+        ),
         ({"type": "meta", "field": {"row_spacing": -1}}, "out_of_bounds", "row_spacing"),
         ({"type": "meta", "field": {"row_spacing": 0}}, "out_of_bounds", "row_spacing"),
         ({"type": "meta", "field": {"min_plant_distance": 0}}, "out_of_bounds", "min_plant"),

@@ -124,7 +124,8 @@ class FieldSchema(_Strict):
             if not isinstance(spec, dict):
                 raise ValueError(f"attribute {name!r}: expected a mapping, got {spec!r}")
             kind = spec.get("kind")
-            model = {"discrete": DiscreteAttribute, "continuous": ContinuousAttribute}.get(kind)
+            models = {"discrete": DiscreteAttribute, "continuous": ContinuousAttribute}
+            model = models.get(kind) if isinstance(kind, str) else None
             if model is None:
                 raise ValueError(
                     f"attribute {name!r}: unknown kind {kind!r} (expected 'discrete' or "

@@ -184,7 +184,7 @@ class _Parser:
         if obj.get("schema") is not None:
             try:
                 schema = FieldSchema.model_validate(obj["schema"])
-            except ValueError as err:
+            except (ValueError, TypeError) as err:
                 raise BadRecordError("bad_schema", first_error(err)) from None
         robots = {}
         for name, spec in _mapping(obj, "robots").items():
