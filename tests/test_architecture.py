@@ -34,8 +34,9 @@ SIDEWAYS = {
     "evaluation": {"sources", "sinks", "perception", "sim", "ros"},
 }
 TOP = {"pipeline", "cli"}
-# modules of sinks/ that write nothing themselves: the tables and read-outs sinks share
-SINK_HELPERS = {"columns", "readouts", "scene", "log_lines"}
+# modules of sinks/ that are no sink themselves: the tables and read-outs sinks share, and
+# how any of them writes a file (atomic)
+SINK_HELPERS = {"columns", "readouts", "scene", "log_lines", "atomic"}
 
 
 def module_name(path: Path) -> str:

@@ -133,3 +133,119 @@ def test_run_names_what_it_reads_when_the_input_is_unknown(tmp_path):
     assert "not a kind of input agrislam reads" in result.output and ".jsonl" in result.output
     result = runner.invoke(app, ["run", str(tmp_path / "missing.jsonl")])
     assert result.exit_code == 2 and "no such file" in result.output
+
+
+# ------------------------------------------------------------- issue 12: errors for people
+
+
+@pytest.fixture(scope="module")
+def small_log(tmp_path_factory):
+    from agrislam.sim.config import SimConfig
+    from agrislam.sim.simulator import Simulator
+    from agrislam.sinks.jsonl import write_log
+
+    log = tmp_path_factory.mktemp("log") / "small.jsonl"
+    cfg = SimConfig.model_validate({"field": {"n_plants": 30, "n_rows": 3}, "seed": 2})
+    write_log(Simulator(cfg).records(), log)
+    return log
+
+
+def _one_message(result, code: int, *says: str) -> None:
+    assert result.exit_code == code, result.output
+    assert "Traceback" not in result.output
+    assert result.exception is None or isinstance(result.exception, SystemExit)
+    for text in says:
+        assert text in result.output.replace("\n", " "), (text, result.output)
+
+
+@pytest.mark.parametrize(
+    ("config", "says"),
+    [
+        ("sensor:\n  detection_sigma_depth: -0.1\n", "sensor.detection_sigma_depth: Input should"),
+        ("association:\n  gate_chii: 9\n", "association.gate_chii: unknown key"),
+        ("association:\n  gate_chi2: .nan\n", "association.gate_chi2: Input should be a finite"),
+        ("association: [1,\n", "not valid YAML at line 2"),
+    ],
+)
+def test_a_bad_config_is_one_message_without_a_traceback(small_log, tmp_path, config, says):
+    path = tmp_path / "bad.yaml"
+    path.write_text(config)
+    result = runner.invoke(app, ["run", str(small_log), "-c", str(path), "-o", str(tmp_path / "o")])
+    _one_message(result, 2, says)
+    assert not (tmp_path / "o").exists()  # checked before anything ran
+    _one_message(runner.invoke(app, ["config", str(path)]), 2, says)
+
+
+def test_debug_shows_the_traceback(small_log, tmp_path):
+    path = tmp_path / "bad.yaml"
+    path.write_text("association:\n  w_sem: 7\n")
+    result = runner.invoke(app, ["--debug", "run", str(small_log), "-c", str(path)])
+    assert result.exit_code != 0 and isinstance(result.exception, ValueError)
+
+
+@pytest.mark.parametrize(
+    ("name", "content", "says"),
+    [
+        ("random.bag", bytes(range(256)) * 20, "is not a ROS 1 bag, or a damaged one"),
+        ("empty.mcap", b"", "is empty"),
+        ("random.db3", b"SQLite format 2\x00" * 100, "is not a rosbag2 SQLite bag"),
+        ("folder", None, "a rosbag2 folder needs its metadata.yaml"),
+    ],
+)
+def test_an_unreadable_bag_is_one_message(tmp_path, name, content, says):
+    path = tmp_path / name
+    if content is None:
+        path.mkdir()
+        (path / "folder_0.mcap").write_bytes(b"\x89MCAP0\r\n")
+    else:
+        path.write_bytes(content)
+    _one_message(runner.invoke(app, ["run", str(path), "-o", str(tmp_path / "o")]), 2, says)
+
+
+def test_out_is_checked_before_mapping(small_log, tmp_path):
+    (tmp_path / "afile").write_text("x")
+    result = runner.invoke(app, ["run", str(small_log), "-o", str(tmp_path / "afile")])
+    _one_message(result, 2, "is a file, not a folder")
+    out = str(tmp_path / "run")
+    assert runner.invoke(app, ["run", str(small_log), "-o", out]).exit_code == 0
+    again = runner.invoke(app, ["run", str(small_log), "-o", out])
+    _one_message(again, 2, "holds the outputs of an earlier run", "use --force")
+    forced = runner.invoke(app, ["run", str(small_log), "-o", out, "--force"])
+    assert forced.exit_code == 0 and "--force: replaced the earlier run's" in forced.output
+
+
+def test_strict_stops_at_the_line_and_keeps_the_map_so_far(small_log, tmp_path):
+    lines = small_log.read_text().splitlines()
+    broken = tmp_path / "broken.jsonl"
+    record = json.loads(lines[100])
+    record["t"] = "soon"
+    lines[100] = json.dumps(record)
+    broken.write_text("\n".join(lines) + "\n")
+    strict = runner.invoke(app, ["run", str(broken), "--strict", "-o", str(tmp_path / "s")])
+    _one_message(strict, 1, "broken.jsonl:101: bad_value: 't' must be a number", "--lenient")
+    assert "frames before it is in" in strict.output
+    assert (tmp_path / "s" / "objects.csv").exists()
+    lenient = runner.invoke(app, ["run", str(broken), "-o", str(tmp_path / "l")])
+    assert lenient.exit_code == 0 and "listed in skipped.csv" in lenient.output
+    skipped = (tmp_path / "l" / "skipped.csv").read_text().splitlines()
+    assert skipped[0] == "line,reason,message" and skipped[1].startswith("101,bad_value,")
+    metrics = json.loads((tmp_path / "l" / "metrics.json").read_text())
+    assert metrics["input"]["skipped"] == {"bad_value": 1}
+
+
+def test_a_log_without_usable_data_says_so(small_log, tmp_path):
+    meta_only = tmp_path / "meta.jsonl"
+    meta_only.write_text(small_log.read_text().splitlines()[0] + "\n")
+    result = runner.invoke(app, ["run", str(meta_only), "-o", str(tmp_path / "o")])
+    _one_message(result, 1, "no usable data")
+
+
+def test_a_bad_meta_stops_lenient_mode_too(small_log, tmp_path):
+    lines = small_log.read_text().splitlines()
+    bad = tmp_path / "bad_meta.jsonl"
+    meta = json.loads(lines[0])
+    meta["anchor"]["lat"] = 95.0
+    bad.write_text("\n".join([json.dumps(meta), *lines[1:]]))
+    result = runner.invoke(app, ["run", str(bad), "-o", str(tmp_path / "o")])
+    _one_message(result, 1, "bad_meta.jsonl:1: out_of_bounds: anchor.lat", "contract")
+    assert not (tmp_path / "o").exists()

@@ -161,3 +161,38 @@ def test_transition_cache_matches_direct_computation():
     # propagation keeps the distribution normalised
     xi = propagate(np.array([[0.7, 0.2, 0.1]]), cache(np.array([86400.0 * 30])))
     assert xi.sum() == pytest.approx(1.0) and xi[0, 2] > 0.1
+
+
+def test_transition_cache_of_no_objects_is_empty():
+    """Issue 12: a growth model on a discrete attribute stopped every run with 'need at
+    least one array to stack' the first time a belief read found no objects."""
+    cache = TransitionCache(3, GrowthModel(l_max=0.6), max_entries=8)
+    assert cache(np.empty(0)).shape == (0, 3, 3)
+
+
+def test_a_survey_with_growth_on_a_discrete_attribute_runs():
+    from agrislam.config import AgrislamConfig, FieldSchema
+    from agrislam.records import Detection, Detections, DiscreteMeasurement, Meta, Odometry
+    from agrislam.world import WorldModel
+
+    schema = FieldSchema.model_validate(
+        {
+            "attributes": {
+                "size": {
+                    "kind": "discrete",
+                    "values": ["small", "medium", "big"],
+                    "time_model": {"kind": "growth", "l_max": 0.6},
+                }
+            }
+        }
+    )
+    world = WorldModel(AgrislamConfig())
+    world.process(Meta(schema=schema))
+    det = Detection(xy=np.array([1.0, 0.2]), attributes={"size": DiscreteMeasurement("big", 0.8)})
+    for k, t in enumerate((0.0, 0.5, 86_400.0)):  # with and without a time gap
+        world.process(Odometry(t, "r1", delta=np.array([0.1 * (k > 0), 0.0, 0.0])))
+        world.process(Detections(t, "r1", (det,)))
+        world.process(Detections(t, "r1", ()))  # a frame that saw nothing: no beliefs to read
+    world.finish()
+    snap = world.snapshot()
+    assert len(snap.objects) >= 1 and snap.objects.discrete["size"].shape[1] == 3

@@ -231,3 +231,33 @@ def test_one_config_object_serves_two_surveys_and_is_never_written():
         np.testing.assert_array_equal(a.objects.discrete[name], b.objects.discrete[name])
     # a third survey with another field prior gets its own
     assert survey(0.6).association.d_inter == pytest.approx(0.3)
+
+
+def test_a_robot_of_the_meta_that_never_drives_is_reported_not_a_crash():
+    """Issue 12: a meta naming a robot without records (or a log of only its meta line)
+    ended the whole survey with KeyError: "robot 'r2' was never added"."""
+    world = WorldModel(config(rows={"enabled": True}))
+    start = RobotStart(np.zeros(3), np.full(3, 0.01))
+    world.process(Meta(robots={"r1": start, "r2": start}))
+    drive(world, "r1", straight(0.0, 1.0, 0.5, 5))
+    world.finish()
+    snap = world.snapshot()
+    assert set(snap.trajectories) == set(snap.dead_reckoning) == {"r1"}
+    assert world.issues["robot 'r2' is in the meta but has no records"] == 1
+    only_meta = WorldModel(config())
+    only_meta.process(Meta(robots={"r1": start}))
+    only_meta.finish()
+    assert len(only_meta.snapshot().objects) == 0
+
+
+@pytest.mark.parametrize("spacing", [0.0, -1.0, float("nan")])
+def test_a_field_prior_without_a_row_spacing_leaves_the_rows_alone(spacing):
+    """Issue 12: row_spacing 0 in a log's field prior ended in ZeroDivisionError in the row
+    code. Sources refuse such a meta; one built in code is ignored with an issue."""
+    world = WorldModel(config(rows={"enabled": True, "n_det_est": 4}))
+    world.process(Meta(field=FieldPrior(row_spacing=spacing, min_plant_distance=-0.4)))
+    drive(world, "r1", straight(0.0, 1.0, 0.5, 8))
+    world.finish()
+    assert world.association.d_inter == AgrislamConfig().association.d_inter
+    assert any("row_spacing" in issue for issue in world.issues)
+    assert len(world.snapshot().objects) == len(PLANTS)

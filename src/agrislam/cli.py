@@ -1,13 +1,21 @@
-"""The `agrislam` command line: open a source, run the world model, write the outputs."""
+"""The `agrislam` command line: open a source, run the world model, write the outputs.
+
+A user error (a bad config value, an input it cannot read, a bad line in strict mode, an
+output folder in use) ends a command with one message saying what, where and what to do,
+and a non-zero exit code: 2 before anything ran, 1 for a run that stopped or found no
+usable data, 130 for Ctrl-C. A traceback only with `agrislam --debug ...`."""
 
 from __future__ import annotations
 
 import json
-from collections.abc import Iterable
+import signal
+from collections.abc import Iterable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any, NoReturn
 
 import typer
+import yaml
 from rich.console import Console
 from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
@@ -15,9 +23,10 @@ from rich.table import Table
 
 from agrislam import __version__
 from agrislam.config import AgrislamConfig, load_mapping
-from agrislam.pipeline import RunResult, run_survey
+from agrislam.pipeline import RunError, RunResult, describe, run_survey
 from agrislam.records import Record
-from agrislam.sources import SourceError, open_source
+from agrislam.sinks.run_folder import RunFolder
+from agrislam.sources import Source, SourceError, open_source
 from agrislam.world import WorldModel
 
 app = typer.Typer(
@@ -28,6 +37,8 @@ app = typer.Typer(
     pretty_exceptions_enable=False,
 )
 console = Console()
+DEBUG = {"on": False}  # set by the global --debug option
+STOP = {"requested": False}  # set by Ctrl-C or SIGTERM during a run
 
 
 def _version(value: bool) -> None:
@@ -41,8 +52,12 @@ def main(
     version: Annotated[
         bool, typer.Option("--version", callback=_version, is_eager=True, help="Print the version.")
     ] = False,
+    debug: Annotated[
+        bool, typer.Option("--debug", help="Show the full traceback of an error.")
+    ] = False,
 ) -> None:
     """Semantic SLAM for crop fields."""
+    DEBUG["on"] = debug
 
 
 ConfigOption = Annotated[
@@ -50,6 +65,10 @@ ConfigOption = Annotated[
     typer.Option("--config", "-c", exists=True, dir_okay=False, help="YAML/TOML/JSON config."),
 ]
 OutOption = Annotated[Path, typer.Option("--out", "-o", help="Output folder.")]
+ForceOption = Annotated[
+    bool,
+    typer.Option("--force", help="Replace the outputs of an earlier run in the --out folder."),
+]
 SOURCE_SECTIONS = ("bag", "sim")  # config file sections for the source, not the world model
 
 
@@ -65,11 +84,13 @@ def simulate(
         Path | None, typer.Option(help="Also write the simulated survey (.jsonl, or .mcap bag).")
     ] = None,
     config: ConfigOption = None,
+    force: ForceOption = False,
 ) -> None:
     """Simulate a field survey and map it (default: the paper's 400-plant simulation)."""
     from agrislam.sources.simulated import simulation_uri
 
-    _survey(simulation_uri(plants=plants, seed=seed, preset=preset), config, out, record=record)
+    uri = simulation_uri(plants=plants, seed=seed, preset=preset)
+    _survey(uri, config, out, record=record, force=force)
 
 
 @app.command()
@@ -87,9 +108,10 @@ def run(
     strict: Annotated[
         bool, typer.Option("--strict/--lenient", help="Stop at the first bad line, or skip it.")
     ] = False,
+    force: ForceOption = False,
 ) -> None:
     """Map a recorded (or simulated) survey."""
-    _survey(log, config, out, strict=strict)
+    _survey(log, config, out, strict=strict, force=force)
 
 
 def _survey(
@@ -99,30 +121,145 @@ def _survey(
     *,
     strict: bool = False,
     record: Path | None = None,
+    force: bool = False,
 ) -> None:
     """Open the source, run the survey, print the source's report and the run's summary.
-    The config file's ``bag:`` and ``sim:`` sections go to the source that reads them."""
-    data = load_mapping(config) if config else {}
-    sections = {name: data.pop(name, None) for name in SOURCE_SECTIONS}
-    cfg = AgrislamConfig.model_validate(data)
-    try:
+    The config file's ``bag:`` and ``sim:`` sections go to the source that reads them.
+    Everything that can be checked before mapping is checked first: the config, the
+    source, the output folder."""
+    with _user_errors():
+        data = load_mapping(config) if config else {}
+        sections = {name: data.pop(name, None) for name in SOURCE_SECTIONS}
+        cfg = _validated(AgrislamConfig, data, config)
         source = open_source(path_or_uri, cfg, strict=strict, **sections)
-    except (FileNotFoundError, ValueError) as err:
-        console.print(f"[red]{escape(str(err))}[/]", soft_wrap=True)
-        raise typer.Exit(2) from None
-    try:
-        records: Iterable[Record] = source.records()
-        if record is not None:
-            records = list(records)
-            _record(records, record)
-            console.print(f"recorded the survey to [bold]{escape(str(record))}[/]")
-        result = _run(records, cfg, out, f"mapping {source.name}")
-    except SourceError as err:
-        hint = " (use --lenient to skip bad lines)"
-        console.print(f"[red]{escape(str(err))}[/]{hint}", soft_wrap=True)
-        raise typer.Exit(1) from None
+        with RunFolder(out, force=force) as folder:
+            if folder.replaced:
+                console.print(f"--force: replaced the earlier run's {', '.join(folder.replaced)}")
+            records: Iterable[Record] | Source = source
+            if record is not None:
+                records = list(source.records())
+                _record(records, record)
+                console.print(f"recorded the survey to [bold]{escape(str(record))}[/]")
+            try:
+                with _stop_between_records():
+                    result = _run(records, cfg, folder, f"mapping {source.name}")
+            except RunError as err:
+                _stopped(err, out, strict)
     console.print(source.report.summary(), markup=False, soft_wrap=True)
     _summary(result, out)
+    if not result.usable:
+        _fail(f"{source.name}: no usable data (no odometry or detections were read)", 1)
+
+
+@contextmanager
+def _stop_between_records() -> Iterator[None]:
+    """Ctrl-C or SIGTERM (a scheduler stopping the run) ends the run after the record in
+    hand, so the map written of what was read is whole; a second one stops at once.
+    (kill -9 cannot be caught: the outputs are atomic, and the lock is the OS's.)"""
+
+    def request(signum: int, frame: Any) -> None:
+        if STOP["requested"]:
+            raise KeyboardInterrupt
+        STOP["requested"] = True
+
+    STOP["requested"] = False
+    try:
+        previous = {sig: signal.signal(sig, request) for sig in (signal.SIGINT, signal.SIGTERM)}
+    except ValueError:  # not the main thread: signals stay as they are
+        yield
+        return
+    try:
+        yield
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+
+
+def _advance(progress: Progress, task: Any) -> None:
+    """After each record: the progress bar, and a requested stop."""
+    progress.advance(task)
+    if STOP["requested"]:
+        raise KeyboardInterrupt
+
+
+@contextmanager
+def _user_errors() -> Iterator[None]:
+    """Errors of the user's input as one message and an exit code; a traceback only with
+    --debug."""
+    try:
+        yield
+    except (typer.Exit, typer.Abort):
+        raise
+    except Exception as err:
+        if DEBUG["on"]:
+            raise
+        if isinstance(err, (OSError, ValueError, yaml.YAMLError)):  # config, source, --out
+            _fail(str(err) or describe(err), 2)
+        _fail(
+            f"internal error: {describe(err)} (run again with --debug for the traceback, and "
+            "please report it)",
+            3,
+        )
+
+
+def _validated(model: Any, data: dict[str, Any], path: Path | None) -> Any:
+    """The config model of `data`; bad values are one line naming each key."""
+    from pydantic import ValidationError
+
+    try:
+        return model.model_validate(data)
+    except ValidationError as err:
+        where = f"config {path}" if path else "config"
+        problems = "; ".join(_problem(e) for e in err.errors())
+        raise ValueError(f"{where}: {problems}") from None
+
+
+def _problem(error: Any) -> str:
+    """One pydantic error as 'key.path: what (got value)'."""
+    key = ".".join(str(p) for p in error["loc"]) or "(top level)"
+    if error["type"] == "extra_forbidden":
+        return f"{key}: unknown key (every key: agrislam config --defaults)"
+    what = str(error["msg"]).removeprefix("Value error, ")
+    value = error.get("input")
+    got = "" if isinstance(value, (dict, list)) else f" (got {value!r})"
+    return f"{key}: {what}{got}"
+
+
+def _stopped(err: RunError, out: Path, strict: bool) -> NoReturn:
+    """A run that stopped: why, what it read, and what of it was written."""
+    result, cause = err.result, err.__cause__
+    if DEBUG["on"] and not isinstance(cause, SourceError):
+        raise err
+    if isinstance(cause, SourceError):
+        fatal = getattr(cause, "fatal", False)
+        hint = "" if fatal or not strict else " (use --lenient to skip bad lines)"
+        if fatal:
+            hint = " (the meta line is the survey's contract: fix it; --lenient does not skip it)"
+        console.print(f"[red]{escape(str(cause))}[/]{hint}", soft_wrap=True)
+    elif isinstance(cause, KeyboardInterrupt):
+        console.print("[red]interrupted[/]")
+    else:  # not the input's fault: an error of agrislam itself
+        console.print(
+            f"[red]the run stopped: {escape(describe(cause or err))}[/] (run again with "
+            "--debug for the traceback, and please report it)",
+            soft_wrap=True,
+        )
+    if result.outputs:
+        console.print(
+            f"the map of the {result.n_frames} frames before it is in "
+            f"[bold]{escape(str(out))}[/]: " + ", ".join(p.name for p in result.outputs),
+            soft_wrap=True,
+        )
+    else:
+        console.print("nothing was mapped: no outputs written")
+    for name, why in result.output_errors.items():
+        console.print(f"[yellow]{name} not written: {escape(why)}[/]", soft_wrap=True)
+    raise typer.Exit(130 if isinstance(cause, KeyboardInterrupt) else 1)
+
+
+def _fail(message: str, code: int) -> NoReturn:
+    console.print(f"[red]{escape(message)}[/]", soft_wrap=True)
+    raise typer.Exit(code)
 
 
 @app.command("config")
@@ -133,14 +270,18 @@ def config_cmd(
     file: Annotated[Path | None, typer.Argument(help="A config file to check and show.")] = None,
 ) -> None:
     """Show a configuration with every value filled in (`--defaults`: the defaults), as JSON."""
-    cfg = AgrislamConfig.load(file) if file and not defaults else AgrislamConfig()
+    with _user_errors():
+        data = load_mapping(file) if file and not defaults else {}
+        cfg = _validated(AgrislamConfig, data, file)
     console.print_json(json.dumps(cfg.model_dump(mode="json", by_alias=True)))
 
 
 # ----------------------------------------------------------------------- helpers
 
 
-def _run(records: Iterable[Record], cfg: AgrislamConfig, out: Path, what: str) -> RunResult:
+def _run(
+    records: Iterable[Record] | Source, cfg: AgrislamConfig, out: RunFolder, what: str
+) -> RunResult:
     total = len(records) if isinstance(records, list) else None
     with Progress(
         TextColumn("{task.description}"),
@@ -151,7 +292,7 @@ def _run(records: Iterable[Record], cfg: AgrislamConfig, out: Path, what: str) -
         transient=True,
     ) as progress:
         task = progress.add_task(what, total=total)
-        return run_survey(records, WorldModel(cfg), out, lambda: progress.advance(task))
+        return run_survey(records, WorldModel(cfg), out, lambda: _advance(progress, task))
 
 
 def _record(records: list[Record], path: Path) -> None:
@@ -188,4 +329,9 @@ def _summary(result: RunResult, out: Path) -> None:
         from agrislam.evaluation import print_metrics
 
         print_metrics(result.metrics, console)
+    for name, why in result.output_errors.items():
+        console.print(f"[yellow]{name} not written: {escape(why)}[/]", soft_wrap=True)
+    skipped = getattr(result.source_report, "n_skipped", 0)
+    if skipped:
+        console.print(f"[yellow]{skipped} bad lines skipped: each is listed in skipped.csv[/]")
     console.print(f"outputs in [bold]{out}[/]: " + ", ".join(p.name for p in result.outputs))

@@ -18,13 +18,16 @@ import numpy as np
 from agrislam.evaluation import evaluate, truth_trajectories, write_metrics
 from agrislam.perception.label_map import LabelMap
 from agrislam.records import Detections, Meta, Record, TruthObject, TruthPose
-from agrislam.sinks.csv import write_objects_csv, write_trajectory_csv
+from agrislam.sinks.atomic import atomic_path
+from agrislam.sinks.csv import write_objects_csv, write_table, write_trajectory_csv
 from agrislam.sinks.foxglove import write_foxglove_mcap
 from agrislam.sinks.geojson import write_geojson
 from agrislam.sinks.report import write_report
 from agrislam.sinks.ros_map import write_map_mcap
+from agrislam.sinks.run_folder import RunFolder, RunFolderError
 from agrislam.sinks.sqlite import save_map
 from agrislam.snapshot import MapSnapshot
+from agrislam.sources.base import Source, SourceError, SourceReport
 from agrislam.sources.sync import synchronise
 from agrislam.world import WorldModel
 
@@ -53,57 +56,186 @@ class Truth:
 
 @dataclass(slots=True)
 class RunResult:
-    snapshot: MapSnapshot
+    """What a run did. `error`: what stopped it (None: it read its source to the end);
+    `records`: records the world model took, by kind; `output_errors`: outputs that could
+    not be written, and why."""
+
+    snapshot: MapSnapshot | None
     metrics: dict[str, Any] | None
     wall_seconds: float
     n_frames: int
     outputs: list[Path]
     issues: dict[str, int]
+    error: BaseException | None = None
+    records: dict[str, int] = field(default_factory=dict)
+    output_errors: dict[str, str] = field(default_factory=dict)
+    source_report: SourceReport | None = None
+
+    @property
+    def usable(self) -> bool:
+        """Whether the source gave the map anything to work with (motion or detections)."""
+        return bool(self.records.get("Odometry") or self.records.get("Detections"))
+
+    @property
+    def status(self) -> str:
+        if self.error is None:
+            return "finished"
+        return f"stopped after {sum(self.records.values())} records: {describe(self.error)}"
+
+
+class RunError(Exception):
+    """A run that stopped before the end of its source (an error of the source, the core
+    or an interrupt, `__cause__`); `result` holds what was mapped until then and the
+    outputs written of it."""
+
+    def __init__(self, result: RunResult) -> None:
+        assert result.error is not None
+        super().__init__(result.status)
+        self.result = result
+
+
+def describe(error: BaseException) -> str:
+    """An error in one line: its message, with its type where the message alone is vague."""
+    if isinstance(error, KeyboardInterrupt):
+        return "interrupted"
+    text = str(error).strip().splitlines()[0] if str(error).strip() else ""
+    if isinstance(error, (SourceError, RunFolderError)) and text:
+        return text
+    return f"{type(error).__name__}: {text}" if text else type(error).__name__
 
 
 def run_survey(
-    records: Iterable[Record],
+    records: Iterable[Record] | Source,
     world: WorldModel,
-    out_dir: Path | None = None,
+    out_dir: str | Path | RunFolder | None = None,
     progress: Callable[[], None] | None = None,
+    *,
+    force: bool = False,
 ) -> RunResult:
-    """Feed every record to the world model, then score the map and write the outputs."""
-    truth, issues, n_frames = Truth(), Counter[str](), 0
-    synced = synchronise(records)
+    """Feed every record to the world model, then score the map and write the outputs.
+
+    `records`: a source (its report then goes into the outputs: `skipped.csv` and the
+    metrics' `input` section) or any records. `out_dir`: a folder, checked and locked
+    before the first record is read (`sinks.run_folder`; `force` replaces an earlier run's
+    outputs), or a `RunFolder` the caller holds. Whatever stops the run (a bad line in
+    strict mode, an error of the core, Ctrl-C), the map of the records before it is
+    written and `RunError` raised with the result."""
+    if isinstance(out_dir, (str, Path)):
+        with RunFolder(out_dir, force=force) as folder:
+            result = _run(records, world, folder, progress)
+    else:
+        result = _run(records, world, out_dir, progress)
+    if result.error is not None:
+        raise RunError(result) from result.error
+    return result
+
+
+def _run(
+    records: Iterable[Record] | Source,
+    world: WorldModel,
+    folder: RunFolder | None,
+    progress: Callable[[], None] | None,
+) -> RunResult:
+    source = records if isinstance(records, Source) else None
+    stream = source.records() if source is not None else records
+    truth, issues, counts = Truth(), Counter[str](), Counter[str]()
+    synced = synchronise(stream)
     start = time.perf_counter()
-    for record in _split_labels(synced, world, issues):
-        if isinstance(record, TruthObject):
-            truth.objects.append(record)
-        elif isinstance(record, TruthPose):
-            truth.poses.append(record)
-        else:
-            if isinstance(record, Meta) and record.field is not None:
-                truth.min_plant_distance = record.field.min_plant_distance
-            report = world.process(record)
-            if report is not None and isinstance(record, Detections):
-                n_frames += 1
-                truth.detection_ids.extend(d.truth_id for d in record.objects)
-                truth.detection_objects.append(report.object_ids)
-        if progress is not None:
-            progress()
-    world.finish()
+    n_frames, error = 0, None
+    try:
+        for record in _split_labels(synced, world, issues):
+            n_frames += _feed(record, world, truth)
+            counts[type(record).__name__] += 1
+            if progress is not None:
+                progress()
+        world.finish()
+    except (Exception, KeyboardInterrupt) as err:  # the map so far is still written
+        error = err
     wall = time.perf_counter() - start
     for frame, reason in synced.unplaced:
         issues[f"frame of {frame.robot!r} not placed: {reason}"] += 1
     issues.update(world.issues)
-    snapshot = world.snapshot()
-    metrics = None
-    if truth.present:
+    result = RunResult(None, None, wall, n_frames, [], dict(issues), error, dict(counts))
+    result.source_report = source.report if source is not None else None
+    result.snapshot = _snapshot(world, result)
+    if result.snapshot is not None and truth.present:
+        result.metrics = _score(result, world, truth)
+    if folder is not None and (counts or error is None):
+        result.outputs, result.output_errors = write_outputs(
+            result.snapshot, folder.path, result.metrics, truth, _summary(result)
+        )
+    return result
+
+
+def _feed(record: Record, world: WorldModel, truth: Truth) -> int:
+    """One record to the world model (truth aside); 1 if it was a frame it mapped."""
+    if isinstance(record, TruthObject):
+        truth.objects.append(record)
+    elif isinstance(record, TruthPose):
+        truth.poses.append(record)
+    else:
+        if isinstance(record, Meta) and record.field is not None:
+            truth.min_plant_distance = record.field.min_plant_distance
+        report = world.process(record)
+        if report is not None and isinstance(record, Detections):
+            truth.detection_ids.extend(d.truth_id for d in record.objects)
+            truth.detection_objects.append(report.object_ids)
+            return 1
+    return 0
+
+
+def _snapshot(world: WorldModel, result: RunResult) -> MapSnapshot | None:
+    """The world's map, also after an error (then without the interest surface if need
+    be); None, with an issue, if the world cannot give one at all."""
+    for surface in (True, False):
+        try:
+            return world.snapshot(with_surface=surface)
+        except Exception as err:
+            failed = describe(err)
+    result.issues[f"no map: the snapshot failed ({failed})"] = 1
+    if result.error is None:
+        result.error = RuntimeError(f"the map could not be read: {failed}")
+    return None
+
+
+def _score(result: RunResult, world: WorldModel, truth: Truth) -> dict[str, Any] | None:
+    assert result.snapshot is not None
+    try:
         metrics = evaluate(
-            snapshot,
+            result.snapshot,
             truth.objects,
             truth.poses,
             associations=truth.associations(world),
             min_plant_distance=truth.min_plant_distance,
         )
-        metrics["run"] = {"wall_seconds": wall, "frames": n_frames}
-    outputs = write_outputs(snapshot, out_dir, metrics, truth) if out_dir is not None else []
-    return RunResult(snapshot, metrics, wall, n_frames, outputs, dict(issues))
+    except Exception as err:
+        result.issues[f"no scores: evaluation failed ({describe(err)})"] = 1
+        return None
+    metrics["run"] = {"wall_seconds": result.wall_seconds, "frames": result.n_frames}
+    return metrics
+
+
+def _summary(result: RunResult) -> dict[str, Any]:
+    """The run's own section of metrics.json: status, what was read and skipped, issues."""
+    report = result.source_report
+    return {
+        "run": {
+            "status": result.status,
+            "wall_seconds": result.wall_seconds,
+            "frames": result.n_frames,
+            "records": result.records,
+            "issues": result.issues,
+        },
+        "input": report.as_dict() if report is not None else None,
+        "skipped": skipped_table(report),
+    }
+
+
+def skipped_table(report: SourceReport | None) -> dict[str, list[Any]] | None:
+    """A source's skipped input as columns (a log's lines, a bag's messages), if any."""
+    table = getattr(report, "skipped_table", None)
+    columns = table() if callable(table) else None
+    return columns if columns and any(len(c) for c in columns.values()) else None
 
 
 def _split_labels(
@@ -128,25 +260,54 @@ def _split_labels(
 
 
 def write_outputs(
-    snapshot: MapSnapshot, out_dir: Path, metrics: dict[str, Any] | None, truth: Truth
-) -> list[Path]:
-    """The files of DESIGN.md "Outputs of a run"."""
+    snapshot: MapSnapshot | None,
+    out_dir: Path,
+    metrics: dict[str, Any] | None,
+    truth: Truth,
+    summary: dict[str, Any] | None = None,
+) -> tuple[list[Path], dict[str, str]]:
+    """The files of DESIGN.md "Outputs of a run", each written atomically (a killed run
+    leaves whole files only) and each on its own: one that fails is reported in the second
+    value (name -> why) and the others are still written. `summary`: the run's own
+    section of metrics.json and its skipped input (`skipped.csv`); metrics.json is written
+    last, so it marks a run whose outputs are all there."""
     out_dir.mkdir(parents=True, exist_ok=True)
-    written = [out_dir / "objects.csv", out_dir / "trajectory.csv", out_dir / "map.sqlite"]
-    write_objects_csv(snapshot, written[0])
-    write_trajectory_csv(snapshot, written[1])
-    save_map(snapshot, written[2])
-    if snapshot.anchor is not None:
-        written.append(out_dir / "map.geojson")
-        write_geojson(snapshot, written[-1])
-    written.append(out_dir / "map.mcap")  # MarkerArray + Path, for RViz and Foxglove
-    write_map_mcap(snapshot, written[-1], overwrite=True)
-    if importlib.util.find_spec("foxglove") is not None:  # the optional `foxglove` extra
-        written.append(out_dir / "map_foxglove.mcap")
-        write_foxglove_mcap(snapshot, written[-1], overwrite=True)
-    written.append(out_dir / "report.png")
-    write_report(snapshot, written[-1], metrics=metrics, truth=truth_trajectories(truth.poses))
-    if metrics is not None:
+    summary = dict(summary or {})
+    skipped = summary.pop("skipped", None)
+    writers: list[tuple[str, Callable[[Path], Any]]] = []
+    if snapshot is not None:
+        writers += [
+            ("objects.csv", lambda p: write_objects_csv(snapshot, p)),
+            ("trajectory.csv", lambda p: write_trajectory_csv(snapshot, p)),
+            ("map.sqlite", lambda p: save_map(snapshot, p)),
+        ]
+    if skipped is not None:
+        writers.append(("skipped.csv", lambda p: write_table(skipped, p)))
+    if snapshot is not None:
+        if snapshot.anchor is not None:
+            writers.append(("map.geojson", lambda p: write_geojson(snapshot, p)))
+        # MarkerArray + Path, for RViz and Foxglove
+        writers.append(("map.mcap", lambda p: write_map_mcap(snapshot, p)))
+        if importlib.util.find_spec("foxglove") is not None:  # the optional `foxglove` extra
+            writers.append(("map_foxglove.mcap", lambda p: write_foxglove_mcap(snapshot, p)))
+        trajectories = truth_trajectories(truth.poses)
+        writers.append(
+            ("report.png", lambda p: write_report(snapshot, p, metrics=metrics, truth=trajectories))
+        )
+    written: list[Path] = []
+    failed: dict[str, str] = {}
+    for name, write in writers:
+        try:
+            with atomic_path(out_dir / name) as tmp:
+                write(tmp)
+        except Exception as err:
+            failed[name] = describe(err)
+            continue
+        written.append(out_dir / name)
+    if metrics is not None or summary:
+        run = {**(metrics or {}).get("run", {}), **summary.get("run", {})}
+        run.update(outputs=[p.name for p in written], output_errors=failed)
+        with atomic_path(out_dir / "metrics.json") as tmp:
+            write_metrics({**(metrics or {}), **summary, "run": run}, tmp)
         written.append(out_dir / "metrics.json")
-        write_metrics(metrics, written[-1])
-    return written
+    return written, failed

@@ -9,6 +9,7 @@ between frames is kept in the robot's chain and composed into the frame's pose.
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from collections import defaultdict
 from collections.abc import Iterator
@@ -146,7 +147,11 @@ class WorldModel:
     def _use_field_prior(self, prior: FieldPrior) -> None:
         """What the survey knows of its field, unless the run's config says otherwise."""
         configured = self.config.association
-        if prior.min_plant_distance and "d_inter" not in configured.model_fields_set:
+        if prior.row_spacing is not None and not prior.row_spacing > 0.0:
+            # sources refuse such a meta; a prior built in code must not reach the rows
+            self.issues[f"field prior row_spacing {prior.row_spacing} ignored"] += 1
+            prior = dataclasses.replace(prior, row_spacing=None)
+        if (prior.min_plant_distance or 0.0) > 0.0 and "d_inter" not in configured.model_fields_set:
             # a detection nearer than half the plant spacing is this plant, not its neighbour
             d_inter = 0.5 * prior.min_plant_distance
             self.association = configured.model_copy(update={"d_inter": d_inter})
@@ -291,6 +296,9 @@ class WorldModel:
         folds history away, sec. 2.6), and prune the young uncertain objects still
         waiting for their grace period: they will not be seen again."""
         self.backend.refine()
+        for name, chain in self.robots.items():
+            if not chain.started:
+                self.issues[f"robot {name!r} is in the meta but has no records"] += 1
         t = float(self.objects.last_update.max(initial=0.0))
         return self._maintain(np.empty(0, dtype=int), t, grace=0.0)
 
@@ -354,6 +362,8 @@ class WorldModel:
         )
         trajectories, dead_reckoning = {}, {}
         for name, chain in self.robots.items():
+            if not chain.started:  # named in the meta, never drove: no trajectory
+                continue
             times, poses = self.backend.trajectory(name)
             trajectories[name] = Trajectory(name, times, poses)
             dead_reckoning[name] = Trajectory(name, *chain.track())

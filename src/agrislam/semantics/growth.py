@@ -76,6 +76,8 @@ class TransitionCache:
     def __call__(self, dt_s: np.ndarray) -> np.ndarray:
         """A(dt) for each dt (k,): (k, n, n)."""
         unique, inverse = np.unique(np.maximum(dt_s, 0.0), return_inverse=True)
+        if len(unique) == 0:  # no objects to bring forward (np.stack needs one array)
+            return np.empty((0, self.n, self.n))
         if len(unique) > self.max_entries // 4:  # a bulk read: computing beats looking up
             return transition_matrices(self.n, self.model, unique)[inverse]
         wanted = unique.tolist()

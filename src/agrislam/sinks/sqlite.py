@@ -3,15 +3,13 @@
 Plain tables a farmer can query with any SQLite tool (one row per object, one row per
 object, attribute and value for discrete beliefs, one row per pose), and `load_map`
 gives back exactly the `MapSnapshot` that `save_map` was given. Saving is atomic: the
-file is written beside the target and renamed over it.
+file is written beside the target in one transaction and renamed over it.
 """
 
 from __future__ import annotations
 
 import json
-import os
 import sqlite3
-import uuid
 from collections.abc import Iterable
 from contextlib import closing
 from pathlib import Path
@@ -22,6 +20,7 @@ import numpy as np
 from agrislam.config import FieldSchema
 from agrislam.records import Anchor
 from agrislam.semantics.heuristic import InterestSurface
+from agrislam.sinks.atomic import atomic_path
 from agrislam.sinks.readouts import discrete_columns
 from agrislam.snapshot import MapSnapshot, ObjectMap, RowLines, Trajectory
 
@@ -59,24 +58,19 @@ CREATE TABLE arrays (name TEXT PRIMARY KEY, dtype TEXT NOT NULL, shape TEXT NOT 
 
 
 def save_map(snapshot: MapSnapshot, path: str | Path) -> Path:
-    """Write the snapshot to `path` (replacing any file there) atomically."""
+    """Write the snapshot to `path` (replacing any file there) atomically: the tables and
+    their rows in one transaction of a new file beside the target, which replaces it once
+    on disk (`sinks.atomic`), so a killed run leaves the old map or the new one."""
     path = Path(path)
-    # beside the target (same file system, so the rename is atomic), created by SQLite with
-    # the usual permissions
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.{uuid.uuid4().hex[:8]}.tmp")
-    try:
-        with closing(sqlite3.connect(tmp)) as db:
-            db.execute("PRAGMA journal_mode = OFF")  # the rename below is the atomic step
-            db.execute("PRAGMA synchronous = OFF")
-            db.executescript(TABLES)
-            with db:
-                _write(db, snapshot)
-        with open(tmp, "rb") as f:
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    with atomic_path(path) as tmp, closing(sqlite3.connect(tmp, isolation_level=None)) as db:
+        db.execute("PRAGMA journal_mode = OFF")  # a new file: the rename is the commit
+        db.execute("PRAGMA synchronous = OFF")  # atomic_path syncs the file before it
+        db.execute("BEGIN")
+        for statement in TABLES.split(";"):
+            if statement.strip():
+                db.execute(statement)
+        _write(db, snapshot)
+        db.execute("COMMIT")
     return path
 
 

@@ -44,12 +44,14 @@ def open_source(
 ) -> Source:
     """The source of a survey log, a ROS bag or a ``sim:`` URI.
 
-    `config`: the run's configuration (a bag's schema, label map and sensor defaults).
+    `config`: the run's configuration (a bag's schema, label map and sensor defaults; the
+    bounds of every value, `sensor.limits`).
     `strict`: a survey log stops at its first bad line (`SourceError`) instead of skipping
     it; a bag reports bad input and reads on either way. `bag`: the bag's topics (a
     config file's ``bag:`` section); `sim`: the simulator's settings under the URI's
     parameters (its ``sim:`` section). Each applies to its own kind of source only.
-    ValueError for an input of no supported kind, FileNotFoundError for a missing path."""
+    ValueError for an input of no supported kind or a bag that cannot be opened (its
+    message says why and what to do), FileNotFoundError for a missing path."""
     if not isinstance(path_or_uri, Path) and (match := _SCHEME.match(path_or_uri)):
         if match["scheme"].lower() != "sim":
             raise ValueError(
@@ -67,12 +69,14 @@ def open_source(
     if is_log:
         from agrislam.sources.jsonl import read_log
 
-        return read_log(path, strict=strict)
+        return read_log(path, strict=strict, config=config)
     if is_bag:
         from agrislam.sources.bag_config import BagSourceConfig
         from agrislam.sources.rosbag import BagSource
 
         if not isinstance(bag, BagSourceConfig):
             bag = BagSourceConfig.model_validate(bag or {})
-        return BagSource(path, config, bag)
+        source = BagSource(path, config, bag)
+        source.check()  # an unreadable bag is a clear error now, not after a run started
+        return source
     raise ValueError(f"{path}: not a kind of input agrislam reads; supported: {SUPPORTED}")

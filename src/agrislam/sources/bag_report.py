@@ -48,6 +48,16 @@ class BagReport:
     def name(self) -> str:
         return self.path
 
+    def skipped_table(self) -> dict[str, list[Any]]:
+        """Every issue as columns (topic, stamp, reason, message), what a run writes as
+        skipped.csv."""
+        return {
+            "topic": [i.topic or "" for i in self.issues],
+            "stamp": [float("nan") if i.stamp is None else i.stamp for i in self.issues],
+            "reason": [i.kind for i in self.issues],
+            "message": [i.message for i in self.issues],
+        }
+
     def as_dict(self) -> dict[str, Any]:
         return {
             "source": self.path,

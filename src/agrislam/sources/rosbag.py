@@ -39,12 +39,12 @@ import dataclasses
 import io
 import math
 import re
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-from rosbags.highlevel import AnyReader, AnyReaderError
+from rosbags.highlevel import AnyReader
 from rosbags.interfaces import MessageDefinitionFormat
 
 from agrislam.config import AgrislamConfig, FieldSchema
@@ -81,11 +81,14 @@ from agrislam.ros.messages import (
     typestore,
 )
 from agrislam.sources.bag_config import BagSourceConfig
+from agrislam.sources.bag_open import check_bag, opened_bag
 from agrislam.sources.bag_report import BagReport, SkipError
+from agrislam.sources.clock import Rejected, RobotClocks
 from agrislam.sources.hypotheses import hypotheses, parse_hypotheses
 from agrislam.sources.jsonl import LogError, read_log
 from agrislam.sources.rgbd import ProjectedFrame, RgbdFrames
 from agrislam.sources.transforms import TransformTree, planar, pose_matrix
+from agrislam.sources.validate import BadRecordError, check_record
 
 _UNTIMED = 3
 _KIND_RANK = {Meta: -1, TruthPose: 0, Odometry: 1, Detections: 2, TruthObject: _UNTIMED}
@@ -100,7 +103,7 @@ class _BagReader:
         self.schema: FieldSchema | None = config.field_schema()
         self.tree = TransformTree()
         self.base_frames: dict[str, str] = {}
-        self.last_stamp: dict[str, float] = {}
+        self.clocks: RobotClocks[tuple[float, Any]] = RobotClocks(config.sensor.limits, "topic")
         self.odom_state: dict[str, tuple[np.ndarray, np.ndarray | None]] = {}
         self.robot_order: list[str] = []
         self.records: list[tuple[int, str | None, int, int, Record]] = []
@@ -209,12 +212,11 @@ class _BagReader:
     def read(self) -> list[Record]:
         if not self.path.exists():
             raise FileNotFoundError(f"bag {self.path} not found")
-        try:
-            reader = AnyReader([self.path], default_typestore=self.store)
-            reader.open()
-        except AnyReaderError as err:
-            raise ValueError(f"{self.path}: not a readable ROS bag: {err}") from None
-        try:
+
+        def damaged(message: str) -> None:
+            self.report.add("damaged", None, None, message)
+
+        with opened_bag(self.path, self.store, damaged) as reader:
             topics = {name: info.msgtype for name, info in reader.topics.items()}
             roles = self._roles(topics)
             self.report.roles = roles
@@ -224,7 +226,7 @@ class _BagReader:
             self.rgbd = RgbdFrames(self.bag, self.perception, self, roles, topics)
             conns = [c for c in reader.connections if c.topic in self.role_of]
             stream = reader.messages(connections=conns) if conns else iter(())  # () = all
-            for conn, logtime, raw in stream:
+            for conn, logtime, raw in _until_damaged(stream, damaged):
                 self.report.messages[conn.topic] += 1
                 try:
                     msg = self._deserialize(reader, conn, raw)
@@ -233,8 +235,7 @@ class _BagReader:
                     continue
                 self._dispatch(conn.topic, msg, logtime)
             self._place_2d(self.rgbd.finish())
-        finally:
-            reader.close()
+        self._late(self.clocks.finish())
         ordered = self._ordered()
         for rec in ordered:
             self.report.records[type(rec).__name__] += 1
@@ -269,16 +270,28 @@ class _BagReader:
                 self.tree.set(tr.header.frame_id, tr.child_frame_id, pose_matrix(tr.transform))
             return
         stamp = stamp_to_seconds(msg.header.stamp)
-        last = self.last_stamp.get(topic)
-        if last is not None and stamp < last:
+        released, rejected = self.clocks.offer(topic, stamp, (stamp, msg))
+        self._late(rejected)
+        for stamp, msg in released:
+            self._stamped(topic, role, stamp, msg)
+
+    def _late(self, rejected: list[Rejected[tuple[float, Any]]]) -> None:
+        """Messages whose stamps go backwards, or spike ahead, on their topic."""
+        for r in rejected:
+            self.report.add(r.reason, r.key, r.item[0], r.message)  # type: ignore[arg-type]
+
+    def _stamped(self, topic: str, role: str, stamp: float, msg: Any) -> None:
+        """A message with a header stamp in its topic's time order."""
+        most = self.config.sensor.limits.max_detections_per_frame
+        if role == "detections" and len(msg.detections) > most:
             self.report.add(
-                "time_backwards",
+                "too_many_detections",
                 topic,
                 stamp,
-                f"stamp is {last - stamp:.6f} s before the previous one",
+                f"{len(msg.detections)} detections in one frame; at most {most} "
+                "(sensor.limits.max_detections_per_frame)",
             )
             return
-        self.last_stamp[topic] = stamp
         try:
             if role == "odometry":
                 self._odometry(topic, stamp, msg)
@@ -295,10 +308,16 @@ class _BagReader:
         except SkipError as skip:
             self.report.add(skip.kind, topic, stamp, skip.message)
 
-    def _emit(self, rec: Record, logtime: int | None = None) -> None:
-        """Keep a record with its sort key: integer ns (so a stamp and a JSON time of the
-        same instant tie), robot, kind, arrival. Untimed records sort where they were logged
-        (after the records of that instant), those logged at 0 before everything."""
+    def _emit(self, rec: Record, topic: str | None = None, logtime: int | None = None) -> bool:
+        """Keep a record that passes `sources.validate` with its sort key: integer ns (so a
+        stamp and a JSON time of the same instant tie), robot, kind, arrival. Untimed
+        records sort where they were logged (after the records of that instant), those
+        logged at 0 before everything. False (and an issue) for a record that fails."""
+        try:
+            rec = check_record(rec, self.config.sensor.limits)
+        except BadRecordError as bad:
+            self.report.add(bad.reason, topic, getattr(rec, "t", None), bad.message)
+            return False
         robot = getattr(rec, "robot", None)
         if robot is not None and robot not in self.robot_order:
             self.robot_order.append(robot)
@@ -307,6 +326,7 @@ class _BagReader:
         else:
             ns = seconds_to_ns(rec.t)  # type: ignore[union-attr]
         self.records.append((ns, robot, _KIND_RANK[type(rec)], len(self.records), rec))
+        return True
 
     def _ordered(self) -> list[Record]:
         """Time order; at equal times robots in meta (else first-seen) order, then truth,
@@ -320,9 +340,18 @@ class _BagReader:
     # ------------------------------------------------------------- messages
 
     def _json_record(self, topic: str, msg: Any, logtime: int) -> None:
+        """A survey-log line carried as a String (meta, truth); a bad meta stops the read,
+        as in a log: it is the survey's contract."""
+        line = io.BytesIO(msg.data.encode("utf-8", "replace"))
         try:
-            (rec,) = list(read_log(io.BytesIO(msg.data.encode("utf-8"))))
-        except (LogError, ValueError) as err:
+            (rec,) = list(read_log(line, config=self.config))
+        except LogError as err:
+            if err.fatal:
+                where = f"{self.path} {topic}"
+                raise LogError(1, err.reason, err.message, where, fatal=True) from None
+            self.report.add("bad_record", topic, logtime * 1e-9, str(err))
+            return
+        except ValueError as err:
             self.report.add("bad_record", topic, logtime * 1e-9, str(err))
             return
         if isinstance(rec, Meta):
@@ -330,7 +359,7 @@ class _BagReader:
                 self.schema = rec.schema
                 self._build_label_map()
             self.robot_order[:0] = [r for r in rec.robots if r not in self.robot_order]
-        self._emit(rec, logtime)
+        self._emit(rec, topic, logtime)
 
     def _odometry(self, topic: str, stamp: float, msg: Any) -> None:
         robot, _ = self.robot_of(topic, odometry=True)
@@ -338,14 +367,15 @@ class _BagReader:
             self.base_frames.setdefault(robot, msg.child_frame_id.lstrip("/"))
         pose = planar(pose_matrix(msg.pose.pose))
         full = np.asarray(msg.pose.covariance, dtype=float).reshape(6, 6)
-        prev = self.odom_state.get(robot)
-        self.odom_state[robot] = (pose, full)
+        prev = self.odom_state.get(robot)  # the last pose kept: a rejected one is skipped over
         cov = self._increment_cov(topic, stamp, full, pose, prev)
         if self.bag.odometry_form == "delta":
             delta = pose if prev is None else between(prev[0], pose)
-            self._emit(Odometry(stamp, robot, delta=delta, cov=cov))
+            rec = Odometry(stamp, robot, delta=delta, cov=cov)
         else:
-            self._emit(Odometry(stamp, robot, pose=pose, cov=cov))
+            rec = Odometry(stamp, robot, pose=pose, cov=cov)
+        if self._emit(rec, topic):
+            self.odom_state[robot] = (pose, full)
 
     def _increment_cov(
         self,
@@ -359,6 +389,13 @@ class _BagReader:
         if mode == "ignore" or full[0, 0] == UNKNOWN_COVARIANCE:
             return None
         cov = full[np.ix_(POSE_COV_INDEX, POSE_COV_INDEX)].copy()
+        if not cov.any():  # ROS: all zeros means unknown; said when it claims a certain motion
+            if prev is not None and not np.allclose(prev[0], pose, rtol=0.0, atol=1e-12):
+                self.report.add(
+                    "zero_covariance", topic, stamp,
+                    "all-zero pose covariance for a motion; the configured default is used",
+                )  # fmt: skip
+            return None
         if mode == "absolute":
             if prev is None:
                 return cov
@@ -368,14 +405,14 @@ class _BagReader:
             before = prev[1][np.ix_(POSE_COV_INDEX, POSE_COV_INDEX)]  # type: ignore[index]
             grown = R @ (cov - before) @ R.T
             w, V = np.linalg.eigh(0.5 * (grown + grown.T))
-            return (V * np.clip(w, 0.0, None)) @ V.T
-        moved = prev is not None and not np.allclose(prev[0], pose, rtol=0.0, atol=1e-12)
-        if moved and not cov.any():
-            self.report.add(
-                "zero_covariance", topic, stamp,
-                "all-zero pose covariance for a motion; the configured default is used",
-            )  # fmt: skip
-            return None
+            if w.min() <= 0.0:  # it did not grow in every direction: no increment to take
+                self.report.add(
+                    "degenerate_covariance", topic, stamp,
+                    "the absolute pose covariance did not grow in every direction since the "
+                    "previous message; the configured default is used",
+                )  # fmt: skip
+                return None
+            return (V * w) @ V.T
         return cov
 
     def to_base(self, frame: str, robot: str) -> np.ndarray:
@@ -429,7 +466,7 @@ class _BagReader:
                 **obj, attributes=attrs, label=label, label_p=label_p, truth_id=truth_id
             )
             objects.append(self._semantics(obj, topic, stamp, i))
-        self._emit(Detections(stamp, robot, tuple(objects), sensor))
+        self._emit(Detections(stamp, robot, tuple(objects), sensor), topic)
 
     def _geometry(self, xy: np.ndarray, cov: np.ndarray | None) -> dict[str, Any]:
         """xy + cov, or range/bearing from the base origin with the along-ray and
@@ -458,7 +495,7 @@ class _BagReader:
         """Emit the projected Detection2D frames, their labels split by the schema."""
         for f in frames:
             objects = [self._semantics(obj, f.topic, f.stamp, i) for i, obj in f.objects]
-            self._emit(Detections(f.stamp, f.robot, tuple(objects), f.sensor))
+            self._emit(Detections(f.stamp, f.robot, tuple(objects), f.sensor), f.topic)
 
 
 class BagSource:
@@ -490,6 +527,10 @@ class BagSource:
     def report(self) -> BagReport:
         return self._report
 
+    def check(self) -> None:
+        """UnreadableBagError (a ValueError) if the bag cannot be opened at all."""
+        check_bag(self.path, typestore(self.bag.vision_msgs_layout))
+
     def records(self) -> Iterator[Record]:
         reader = _BagReader(self.path, self.config, self.bag)
         self._report = reader.report
@@ -498,3 +539,24 @@ class BagSource:
 
 def _read(reader: _BagReader) -> Iterator[Record]:
     yield from reader.read()
+
+
+def _until_damaged(
+    stream: Iterator[tuple[Any, int, bytes]], damaged: Callable[[str], None]
+) -> Iterator[tuple[Any, int, bytes]]:
+    """The bag's messages up to the first one its file cannot give (damage past the
+    point a bag opens at): what came before is kept, the damage reported."""
+    n = 0
+    while True:
+        try:
+            item = next(stream)
+        except StopIteration:
+            return
+        except Exception as err:
+            damaged(
+                f"the bag cannot be read past its message {n} ({err}); the messages before it "
+                "are used"
+            )
+            return
+        n += 1
+        yield item

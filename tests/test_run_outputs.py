@@ -1,0 +1,191 @@
+"""Issue 12, a run's outputs survive: every file is written atomically (a kill -9 leaves the
+old file or the new one, whole), map.sqlite passes PRAGMA integrity_check after a kill in
+the middle of writing it, a run stopped by an error of the core still writes the map of
+what it read, one run at a time per output folder (a lock; a dead owner's lock is taken
+over), and an earlier run's outputs are replaced only with --force, leaving none of them."""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import signal
+import sqlite3
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from agrislam.pipeline import RunError, run_survey
+from agrislam.sinks.atomic import atomic_path, is_temporary
+from agrislam.sinks.run_folder import LOCK_NAME, RunFolder, RunFolderError
+from agrislam.sinks.sqlite import load_map, save_map
+from agrislam.sources import open_source
+from agrislam.world import WorldModel
+
+SMALL = "sim:?plants=30&seed=2"
+SRC = str(Path(__file__).resolve().parents[1] / "src")
+
+
+def _python(code: str) -> subprocess.Popen:
+    env = {**os.environ, "PYTHONPATH": SRC}
+    return subprocess.Popen([sys.executable, "-c", textwrap.dedent(code)], env=env)
+
+
+def _wait_for(path: Path, timeout: float = 60.0) -> None:
+    end = time.monotonic() + timeout
+    while not path.exists():
+        assert time.monotonic() < end, f"{path} never appeared"
+        time.sleep(0.02)
+
+
+def test_an_atomic_write_replaces_the_file_whole_or_not_at_all(tmp_path):
+    target = tmp_path / "objects.csv"
+    target.write_text("old\n")
+    with pytest.raises(RuntimeError), atomic_path(target) as tmp:
+        tmp.write_text("half of the new")
+        raise RuntimeError("killed")
+    assert target.read_text() == "old\n" and os.listdir(tmp_path) == ["objects.csv"]
+    with atomic_path(target) as tmp:
+        assert tmp.parent == tmp_path and tmp.suffix == ".csv" and is_temporary(tmp.name)
+        tmp.write_text("new\n")
+    assert target.read_text() == "new\n" and os.listdir(tmp_path) == ["objects.csv"]
+
+
+def test_map_sqlite_killed_while_it_is_written_stays_a_whole_database(tmp_path, snapshot_factory):
+    """kill -9 at several moments of a process that keeps saving a large map: the file is
+    always a database that passes integrity_check and loads."""
+    source = save_map(snapshot_factory(n_rows=40, per_row=500), tmp_path / "source.sqlite")
+    path = tmp_path / "map.sqlite"
+    writer = f"""
+        from agrislam.sinks.sqlite import load_map, save_map
+        snapshot = load_map({str(source)!r})
+        while True:
+            save_map(snapshot, {str(path)!r})
+    """
+    for delay in (0.05, 0.2, 0.35):
+        proc = _python(writer)
+        _wait_for(path)
+        time.sleep(delay)
+        proc.send_signal(signal.SIGKILL)
+        proc.wait()
+        with sqlite3.connect(path) as db:
+            assert db.execute("PRAGMA integrity_check").fetchone() == ("ok",)
+        assert len(load_map(path).objects) == 20_000
+    source.unlink()
+    # the process only ever writes: each kill caught it mid-write, leaving its temporary file
+    assert [p for p in tmp_path.iterdir() if is_temporary(p.name)]
+    with RunFolder(tmp_path, force=True) as folder:  # the next run clears what kills left
+        assert folder.replaced == ["map.sqlite"]
+    assert not [p for p in tmp_path.iterdir() if is_temporary(p.name)]
+
+
+def test_out_must_be_a_folder_that_can_be_written(tmp_path):
+    (tmp_path / "afile").write_text("x")
+    with pytest.raises(RunFolderError, match="is a file, not a folder"):
+        RunFolder(tmp_path / "afile").open()
+    with pytest.raises(RunFolderError, match="afile/sub"):
+        RunFolder(tmp_path / "afile" / "sub").open()
+    if os.geteuid() != 0:  # root writes anywhere
+        locked = tmp_path / "locked"
+        locked.mkdir(mode=0o500)
+        with pytest.raises(RunFolderError, match="cannot be written"):
+            RunFolder(locked / "run").open()
+
+
+def test_a_second_run_into_a_folder_in_use_refuses_and_a_dead_owners_lock_is_taken(tmp_path):
+    holder = f"""
+        import time
+        from agrislam.sinks.run_folder import RunFolder
+        RunFolder({str(tmp_path)!r}).open()
+        open({str(tmp_path / "held")!r}, "w").close()
+        time.sleep(60)
+    """
+    proc = _python(holder)
+    try:
+        _wait_for(tmp_path / "held")
+        with pytest.raises(RunFolderError, match=f"in use by process {proc.pid} on"):
+            RunFolder(tmp_path).open()
+    finally:
+        proc.send_signal(signal.SIGKILL)
+        proc.wait()
+    assert (tmp_path / LOCK_NAME).exists()  # kill -9: the file stays, the OS lock does not
+    (tmp_path / "held").unlink()
+    with RunFolder(tmp_path) as folder:
+        owner = json.loads((tmp_path / LOCK_NAME).read_text())
+        assert owner["pid"] == os.getpid() and folder.path == tmp_path
+    assert not (tmp_path / LOCK_NAME).exists()
+
+
+def test_an_earlier_run_is_replaced_only_with_force_and_leaves_no_file(tmp_path):
+    out = tmp_path / "run"
+    run_survey(open_source(SMALL), WorldModel(), out)
+    with pytest.raises(RunFolderError, match=r"earlier run \(finished: .*use --force"):
+        run_survey(open_source(SMALL), WorldModel(), out)
+    stale = out / "skipped.csv"  # an older run's file this run does not write
+    stale.write_text("line,reason,message\n")
+    mine = out / "notes.txt"
+    mine.write_text("the user's own file")
+    result = run_survey(open_source(SMALL), WorldModel(), out, force=True)
+    names = {p.name for p in result.outputs}
+    assert not stale.exists() and mine.exists()
+    assert {p.name for p in out.iterdir()} == names | {"notes.txt"}
+
+
+def test_a_run_stopped_by_the_core_still_writes_the_map_so_far(tmp_path, monkeypatch):
+    calls = {"n": 0}
+    step = WorldModel.step
+
+    def failing(self, frame):
+        calls["n"] += 1
+        if calls["n"] == 40:
+            raise ValueError("covariance is not positive definite")  # what used to escape
+        return step(self, frame)
+
+    monkeypatch.setattr(WorldModel, "step", failing)
+    with pytest.raises(RunError) as err:
+        run_survey(open_source(SMALL), WorldModel(), tmp_path / "run")
+    result = err.value.result
+    assert "stopped after" in str(err.value) and "not positive definite" in str(err.value)
+    assert isinstance(err.value.__cause__, ValueError)
+    assert {p.name for p in result.outputs} >= {"objects.csv", "map.sqlite", "metrics.json"}
+    metrics = json.loads((tmp_path / "run" / "metrics.json").read_text())
+    assert metrics["run"]["status"].startswith("stopped after")
+    with (tmp_path / "run" / "objects.csv").open() as f:
+        assert len(list(csv.DictReader(f))) == len(result.snapshot.objects) > 0
+
+
+def test_one_output_that_fails_costs_that_file_only(tmp_path, monkeypatch):
+    import agrislam.pipeline as pipeline
+
+    def broken(*args, **kwargs):
+        raise MemoryError("no memory for the figure")
+
+    monkeypatch.setattr(pipeline, "write_report", broken)
+    result = run_survey(open_source(SMALL), WorldModel(), tmp_path / "run")
+    assert result.output_errors == {"report.png": "MemoryError: no memory for the figure"}
+    assert not (tmp_path / "run" / "report.png").exists()
+    assert (tmp_path / "run" / "map.sqlite").exists()
+    metrics = json.loads((tmp_path / "run" / "metrics.json").read_text())
+    assert metrics["run"]["output_errors"] == result.output_errors
+    assert not [p for p in (tmp_path / "run").iterdir() if is_temporary(p.name)]
+    assert np.isfinite(metrics["run"]["wall_seconds"])
+
+
+def test_an_interrupt_between_records_writes_the_map_so_far(tmp_path):
+    """What the CLI's Ctrl-C and SIGTERM do: stop after the record in hand."""
+    seen = {"n": 0}
+
+    def progress():
+        seen["n"] += 1
+        if seen["n"] == 150:
+            raise KeyboardInterrupt
+
+    with pytest.raises(RunError, match="interrupted") as err:
+        run_survey(open_source(SMALL), WorldModel(), tmp_path / "run", progress)
+    assert isinstance(err.value.__cause__, KeyboardInterrupt)
+    assert "objects.csv" in {p.name for p in err.value.result.outputs}
