@@ -17,6 +17,14 @@ class OdometryTrack:
     cov: np.ndarray  # (m-1, 3, 3) the covariance reported with each increment
     dead_reckoned: np.ndarray  # (m, 3) the increments integrated from the true start
 
+    def record(self, i: int, standstill: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Motion and covariance of the i-th odometry record. The first marks where the
+        robot's timeline starts: zero motion, with the `standstill` covariance (a zero one
+        would be singular in the graph)."""
+        if i == 0:
+            return np.zeros(3), standstill
+        return self.delta[i - 1], self.cov[i - 1]
+
 
 def increments(poses: np.ndarray) -> np.ndarray:
     """p_{k-1}^-1 (+) p_k for consecutive poses (m, 3) -> (m-1, 3)."""
