@@ -1,3 +1,5 @@
 """The field simulator: a stand-in for the paper's Gazebo world (sec. 3.1) that yields the
 same records as a recorded survey log. `Simulator(SimConfig()).records()` is the default
-400-plant run; `record_simulation(cfg, path)` writes it as JSONL."""
+400-plant run; `record_simulation(cfg, path)` writes it as JSONL.
+`ArenaSimulator(ArenaConfig()).records()` (arena.py) is the other scenario: robots driving
+random paths among point landmarks in a small indoor arena (issue 11, item 4)."""
