@@ -1,5 +1,6 @@
 """Wheel/leg odometry of a simulated robot: the true motion increments with white noise per
-step and a slowly wandering heading bias, and the trajectory dead reckoning makes of them."""
+step and a slowly wandering heading bias (the field), or random-walk noise with a scale
+and heading bias per robot (the arena), and the trajectory dead reckoning makes of them."""
 
 from __future__ import annotations
 
@@ -8,7 +9,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from agrislam.geometry.se2 import wrap_angle
-from agrislam.sim.config import OdometryNoise
+from agrislam.sim.config import ArenaOdometry, OdometryNoise
 
 
 @dataclass(frozen=True, slots=True)
@@ -16,6 +17,14 @@ class OdometryTrack:
     delta: np.ndarray  # (m-1, 3) measured increments, each in the previous robot frame
     cov: np.ndarray  # (m-1, 3, 3) the covariance reported with each increment
     dead_reckoned: np.ndarray  # (m, 3) the increments integrated from the true start
+
+    def record(self, i: int, standstill: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Motion and covariance of the i-th odometry record. The first marks where the
+        robot's timeline starts: zero motion, with the `standstill` covariance (a zero one
+        would be singular in the graph)."""
+        if i == 0:
+            return np.zeros(3), standstill
+        return self.delta[i - 1], self.cov[i - 1]
 
 
 def increments(poses: np.ndarray) -> np.ndarray:
@@ -72,4 +81,40 @@ def noisy_odometry(
     cov = np.zeros((len(true), 3, 3))
     idx = np.arange(3)
     cov[:, idx, idx] = (noise.report_scale * sigma) ** 2
+    return OdometryTrack(delta=measured, cov=cov, dead_reckoned=integrate(poses[0], measured))
+
+
+def random_walk_variance(true: np.ndarray, dt: np.ndarray, noise: ArenaOdometry) -> np.ndarray:
+    """(m-1, 3) variance of the white noise on each true increment (x, y, theta): each grows
+    with the metres driven, the radians turned and the seconds passed, whatever the rate."""
+    ds = np.hypot(true[:, 0], true[:, 1])
+    per_s = np.square(noise.sigma_per_sqrt_s)
+    return np.column_stack(
+        [
+            noise.sigma_x_per_sqrt_m**2 * ds + per_s[0] * dt,
+            noise.sigma_y_per_sqrt_m**2 * ds + per_s[1] * dt,
+            noise.sigma_theta_per_sqrt_m**2 * ds
+            + noise.sigma_theta_per_sqrt_rad**2 * np.abs(true[:, 2])
+            + per_s[2] * dt,
+        ]
+    )
+
+
+def drifting_odometry(
+    poses: np.ndarray, t: np.ndarray, noise: ArenaOdometry, rng: np.random.Generator
+) -> OdometryTrack:
+    """What a robot's wheel odometry reports while it follows the true poses (m, 3) at times
+    t: random-walk noise, a distance scale error and a heading bias per metre of its own (both
+    drawn here, once), and a covariance that reports the white noise by `report_sigma_factor`
+    (and the biases not at all)."""
+    true = increments(poses)
+    var = random_walk_variance(true, np.diff(t), noise)
+    scale = 1.0 + rng.normal(0.0, noise.scale_bias)
+    heading_bias = rng.choice([-1.0, 1.0]) * noise.heading_bias_per_m
+    measured = true + rng.normal(0.0, 1.0, true.shape) * np.sqrt(var)
+    measured[:, :2] *= scale
+    measured[:, 2] = wrap_angle(measured[:, 2] + heading_bias * np.hypot(true[:, 0], true[:, 1]))
+    cov = np.zeros((len(true), 3, 3))
+    idx = np.arange(3)
+    cov[:, idx, idx] = var * np.square(noise.report_sigma_factor)
     return OdometryTrack(delta=measured, cov=cov, dead_reckoned=integrate(poses[0], measured))

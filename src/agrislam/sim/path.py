@@ -61,10 +61,12 @@ class SurveyPath:
         return self.length / speed
 
 
-def rounded_polyline(waypoints: np.ndarray, radius: float) -> SurveyPath:
+def rounded_polyline(
+    waypoints: np.ndarray, radius: float, spin_above: float = np.pi - 1e-6
+) -> SurveyPath:
     """Straight legs between waypoints, each corner replaced by an arc of `radius` (smaller if
-    the legs are too short: a corner may use at most half of each leg); a reversal is a turn
-    on the spot."""
+    the legs are too short: a corner may use at most half of each leg); a corner turning more
+    than `spin_above` rad (by default only a reversal) is a turn on the spot."""
     w = np.asarray(waypoints, float)
     keep = np.r_[True, np.linalg.norm(np.diff(w, axis=0), axis=1) > 1e-9]
     w = w[keep]
@@ -74,7 +76,7 @@ def rounded_polyline(waypoints: np.ndarray, radius: float) -> SurveyPath:
     leg_len = np.linalg.norm(leg, axis=1)
     head = np.arctan2(leg[:, 1], leg[:, 0])
     turn = wrap_angle(head[1:] - head[:-1])  # at each interior waypoint
-    spin = np.abs(turn) > np.pi - 1e-6
+    spin = np.abs(turn) > spin_above
     tan_half = np.where(spin, 0.0, np.tan(np.abs(turn) / 2))
     avail = 0.5 * np.minimum(leg_len[:-1], leg_len[1:])
     r = np.where(tan_half > 1e-12, np.minimum(radius, avail / np.maximum(tan_half, 1e-12)), 0.0)

@@ -49,6 +49,19 @@ class RobotSurvey:
         return self.path.sample(np.array([t - self.t0]), self.speed)[0]
 
 
+def time_order(times: list[tuple[np.ndarray, ...]]) -> np.ndarray:
+    """(time, robot, kind, index) of every record, sorted by time, then robot, then kind:
+    `times[k][kind]` are robot k's record times of that kind (kinds in writing order)."""
+    ev = np.vstack(
+        [
+            np.column_stack([t, np.full(len(t), k), np.full(len(t), kind), np.arange(len(t))])
+            for k, robot in enumerate(times)
+            for kind, t in enumerate(robot)
+        ]
+    )
+    return ev[np.lexsort((ev[:, 2], ev[:, 1], ev[:, 0]))]
+
+
 class Simulator:
     """`Simulator(SimConfig()).records()` is the paper's default 400-plant survey."""
 
@@ -137,23 +150,9 @@ class Simulator:
         detector = Detector(field, self.cfg.detector)
         surveys = [self.survey(day, k, name) for k, name in enumerate(names)]
         rngs = [self._rng(_DETECTOR, day, k) for k in range(len(surveys))]
-        # (time, robot, kind, index) of every record of the day, sorted
-        events = []
-        for k, sv in enumerate(surveys):
-            t_truth = np.union1d(sv.t_odom, sv.t_frames)
-            for kind, times in ((_TRUTH, t_truth), (_ODOM, sv.t_odom), (_FRAME, sv.t_frames)):
-                events.append(
-                    np.column_stack(
-                        [
-                            times,
-                            np.full(len(times), k),
-                            np.full(len(times), kind),
-                            np.arange(len(times)),
-                        ]
-                    )
-                )
-        ev = np.vstack(events)
-        ev = ev[np.lexsort((ev[:, 2], ev[:, 1], ev[:, 0]))]
+        ev = time_order(
+            [(np.union1d(sv.t_odom, sv.t_frames), sv.t_odom, sv.t_frames) for sv in surveys]
+        )
         odom_pose = [integrate(np.zeros(3), sv.odometry.delta) for sv in surveys]
         for t, k, kind, i in ev:
             sv, k, i = surveys[int(k)], int(k), int(i)
@@ -167,12 +166,9 @@ class Simulator:
 
     def _odometry(self, sv: RobotSurvey, i: int, pose: np.ndarray) -> Odometry:
         """The first record of a robot marks where its timeline starts: zero motion, with the
-        standing-still uncertainty (a zero covariance would be singular in the graph)."""
-        if i == 0:
-            floor = self.cfg.odometry.report_scale * np.asarray(self.cfg.odometry.sigma_floor)
-            delta, cov = np.zeros(3), np.diag(floor**2)
-        else:
-            delta, cov = sv.odometry.delta[i - 1], sv.odometry.cov[i - 1]
+        standing-still uncertainty."""
+        floor = self.cfg.odometry.report_scale * np.asarray(self.cfg.odometry.sigma_floor)
+        delta, cov = sv.odometry.record(i, np.diag(floor**2))
         if self.cfg.odometry.kind == "pose":
             return Odometry(t=float(sv.t_odom[i]), robot=sv.name, pose=pose, cov=cov)
         return Odometry(t=float(sv.t_odom[i]), robot=sv.name, delta=delta, cov=cov)

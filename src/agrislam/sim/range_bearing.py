@@ -1,0 +1,80 @@
+"""The arena robots' camera: range and bearing to every landmark within its range and field
+of view, Gaussian noise, a few gross range outliers, and optionally the landmark's id read
+off its barcode, sometimes wrong. Vectorised over all frames of a robot at once."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from agrislam.geometry.se2 import wrap_angle
+from agrislam.sim.config import LandmarkAttribute, RangeBearingCamera
+
+MIN_REPORTED_RANGE = 0.01  # m; the noise must not make a range negative (the log forbids it)
+
+
+@dataclass(frozen=True, slots=True)
+class Observations:
+    """Every landmark detection of one robot, sorted by frame (struct of arrays)."""
+
+    frame: np.ndarray  # (n,) index of the frame
+    landmark: np.ndarray  # (n,) index of the landmark seen
+    true_range: np.ndarray  # (n,) m
+    true_bearing: np.ndarray  # (n,) rad
+    range: np.ndarray  # (n,) measured, m
+    bearing: np.ndarray  # (n,) measured, rad
+    outlier: np.ndarray  # (n,) bool: a gross range error
+
+    def __len__(self) -> int:
+        return len(self.frame)
+
+    def in_frame(self, i: int) -> range:
+        """Indices of the detections of frame i."""
+        lo, hi = np.searchsorted(self.frame, [i, i + 1])
+        return range(int(lo), int(hi))
+
+
+def in_view(
+    poses: np.ndarray, landmarks: np.ndarray, cfg: RangeBearingCamera
+) -> tuple[np.ndarray, ...]:
+    """(frame, landmark) index pairs of the landmarks inside range and field of view from each
+    pose (f, 3), sorted by frame, with their true range and bearing."""
+    d = landmarks[None, :, :] - poses[:, None, :2]
+    r = np.hypot(d[..., 0], d[..., 1])
+    b = wrap_angle(np.arctan2(d[..., 1], d[..., 0]) - poses[:, 2:3])
+    seen = (r >= cfg.min_range) & (r <= cfg.max_range) & (np.abs(b) <= np.deg2rad(cfg.fov_deg) / 2)
+    frame, landmark = np.nonzero(seen)  # row-major: sorted by frame
+    return frame, landmark, r[frame, landmark], b[frame, landmark]
+
+
+def observe(
+    poses: np.ndarray, landmarks: np.ndarray, cfg: RangeBearingCamera, rng: np.random.Generator
+) -> Observations:
+    """What the camera measures from each true pose (f, 3) of a robot's frames."""
+    frame, landmark, r, b = in_view(poses, landmarks, cfg)
+    n = len(frame)
+    noisy = r + rng.normal(0.0, cfg.sigma_range, n)
+    outlier = rng.random(n) < cfg.outlier_rate
+    wild = rng.uniform(cfg.min_range, cfg.max_range, n)
+    return Observations(
+        frame=frame,
+        landmark=landmark,
+        true_range=r,
+        true_bearing=b,
+        range=np.maximum(np.where(outlier, wild, noisy), MIN_REPORTED_RANGE),
+        bearing=wrap_angle(b + rng.normal(0.0, cfg.sigma_bearing, n)),
+        outlier=outlier,
+    )
+
+
+def read_ids(
+    landmark: np.ndarray, n_landmarks: int, cfg: LandmarkAttribute, rng: np.random.Generator
+) -> np.ndarray:
+    """The landmark index each detection's barcode read reports: its own, or with
+    `error_rate` one of the others, uniformly."""
+    wrong = rng.random(len(landmark)) < cfg.error_rate
+    if n_landmarks < 2:
+        return landmark.copy()
+    other = (landmark + rng.integers(1, n_landmarks, len(landmark))) % n_landmarks
+    return np.where(wrong, other, landmark)
