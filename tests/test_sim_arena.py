@@ -16,7 +16,8 @@ from agrislam.sim.landmarks import clustered_landmarks
 from agrislam.sim.odometry import drifting_odometry, increments, integrate, random_walk_variance
 from agrislam.sim.random_drive import segment_distance
 from agrislam.sim.range_bearing import observe, read_ids
-from agrislam.sources.jsonl import read_log, write_log
+from agrislam.sinks.jsonl import write_log
+from agrislam.sources.jsonl import read_log
 from agrislam.sources.sync import synchronise
 
 SMALL = {"driving": {"duration_s": 60.0, "n_robots": 2}}
