@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from collections import defaultdict
+from collections import Counter, defaultdict
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -108,7 +108,7 @@ class WorldModel:
         self._steps_since_rebuild = 0
         self.depth_bias = DepthBiasEstimator(self.config.sensor.depth_bias)
         self.anchor = None
-        self.issues: dict[str, int] = defaultdict(int)
+        self.issues: Counter[str] = self.backend.issues  # with what the back end isolated
         self.robots: dict[str, OdometryChain] = {}
         self._timer = _Timer()
 

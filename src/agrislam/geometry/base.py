@@ -4,6 +4,7 @@ merges and rows. A solver subclass says how factors reach GTSAM and how it solve
 from __future__ import annotations
 
 import math
+from collections import Counter
 
 import gtsam
 import numpy as np
@@ -70,6 +71,8 @@ class BackendBase:
         self.slam = slam
         self.rows_config = rows
         self.graph = SurveyGraph()
+        # degenerate geometry the solver isolated instead of stopping the run, by reason
+        self.issues: Counter[str] = Counter()
 
     # ------------------------------------------------------------ solver hooks
     def _insert(self, key: int, value: np.ndarray) -> None:

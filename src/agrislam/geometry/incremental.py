@@ -23,6 +23,10 @@ carries on from that solution; call it at the end of a survey, or when time allo
 from __future__ import annotations
 
 import math
+import re
+from collections import Counter
+from collections.abc import Callable
+from typing import TypeVar
 
 import gtsam
 import numpy as np
@@ -44,6 +48,8 @@ from agrislam.geometry.isam_state import (
 )
 from agrislam.geometry.se2 import between, compose, point_jacobian, rotation, to_robot_frame
 
+T = TypeVar("T")
+
 # conditioning on a keyframe: its prior (m, rad); others only kept from floating away
 FIXED_SIGMA = 1e-4
 FREE_SIGMA = 10.0
@@ -60,7 +66,7 @@ def isam2(slam: SlamConfig) -> gtsam.ISAM2:
 
 
 def conditioned(
-    graph: gtsam.NonlinearFactorGraph, point: gtsam.Values, fixed: int, free: list[int]
+    graph: gtsam.NonlinearFactorGraph, point: gtsam.Values, fixed: int | None, free: list[int]
 ) -> gtsam.NonlinearFactorGraph:
     """The graph with node `fixed` held at its value (a tight prior) and the other
     `free` nodes given only a weak prior, so that it can be solved on its own."""
@@ -74,6 +80,67 @@ def conditioned(
             noise = gtsam.noiseModel.Isotropic.Sigma(2, sigma)
             out.push_back(gtsam.PriorFactorPoint2(key, point.atPoint2(key), noise))
     return out
+
+
+def indeterminate_key(err: RuntimeError) -> int | None:
+    """The node GTSAM names in an IndeterminateLinearSystemException, if it names one."""
+    found = re.search(r"near variable\s+(\d+)", str(err))
+    return int(found.group(1)) if found else None
+
+
+def isolating(
+    build: Callable[[gtsam.NonlinearFactorGraph], T],
+    graph: gtsam.NonlinearFactorGraph,
+    point: gtsam.Values,
+    issues: Counter[str],
+    what: str,
+) -> T:
+    """build(graph), where GTSAM may find the system indeterminate: the node it names (an
+    object seen along one ray only) gets the weak FREE_SIGMA prior and the build is tried
+    again; named again, or where a whole part has no gauge (a robot that shares only one
+    landmark yet), every node gets it. Degenerate geometry costs those nodes' certainty,
+    not the run; raises only if even that fails."""
+    isolated: set[int] = set()
+    every_node = False
+    while True:
+        try:
+            return build(graph)
+        except RuntimeError as err:
+            key = indeterminate_key(err)
+            if key is None or not point.exists(key) or every_node:
+                raise
+            every_node = key in isolated
+            isolated.add(key)
+            graph = conditioned(
+                graph, point, None, list(graph.keyVector()) if every_node else [key]
+            )
+            kind = "pose" if key_kind(key) == POSE else "object"
+            issues[f"{kind} held by a weak prior: indeterminate in {what}"] += 1
+
+
+def component(
+    graph: gtsam.NonlinearFactorGraph, seed: int
+) -> tuple[gtsam.NonlinearFactorGraph, set[int]]:
+    """The factors of `graph` connected to node `seed` (in their order) and their nodes:
+    with several robots, the part of a window that another robot's keyframe does not
+    reach has no gauge of its own when conditioned on this one."""
+    parent: dict[int, int] = {}
+
+    def root(key: int) -> int:
+        while parent.setdefault(key, key) != key:
+            parent[key] = key = parent[parent[key]]
+        return key
+
+    keys = [list(graph.at(n).keys()) for n in range(graph.size())]
+    for factor_keys in keys:
+        for key in factor_keys[1:]:
+            parent[root(key)] = root(factor_keys[0])
+    mine = root(seed)
+    out = gtsam.NonlinearFactorGraph()
+    for n, factor_keys in enumerate(keys):
+        if factor_keys and root(factor_keys[0]) == mine:
+            out.push_back(graph.at(n))
+    return out, {key for key in parent if root(key) == mine}
 
 
 class IncrementalBackend(BackendBase):
@@ -288,13 +355,37 @@ class IncrementalBackend(BackendBase):
         for slot in self._slots.inside(set(blanket)):
             around.push_back(factors.at(slot))
         for keyframe, keys in anchored.items():
-            marginals = gtsam.Marginals(conditioned(around, point, keyframe, blanket), point)
+            covs = self._given(keyframe, keys, around, point, blanket)
             kf_pose = value_array(point, keyframe)
             rot = rotation(kf_pose[2])
-            for key in keys:
+            for key, cov in zip(keys, covs, strict=True):
                 z = to_robot_frame(kf_pose, value_array(point, key))
-                cov = rot.T @ marginals.marginalCovariance(key) @ rot
-                self._retired_objects.put(key, keyframe, z, cov=cov)
+                self._retired_objects.put(key, keyframe, z, cov=rot.T @ cov @ rot)
+
+    def _given(
+        self,
+        keyframe: int,
+        keys: list[int],
+        around: gtsam.NonlinearFactorGraph,
+        point: gtsam.Values,
+        blanket: list[int],
+    ) -> list[np.ndarray]:
+        """Map-frame covariances of objects `keys` given `keyframe`, from the part of
+        `around` connected to it; should even that fail, the objects keep a covariance
+        of FREE_SIGMA and the run goes on."""
+        local, nodes = component(around, keyframe)
+        free = [k for k in blanket if k in nodes]
+
+        def covariances(graph: gtsam.NonlinearFactorGraph) -> list[np.ndarray]:
+            marginals = gtsam.Marginals(graph, point)
+            return [marginals.marginalCovariance(key) for key in keys]
+
+        graph = conditioned(local, point, keyframe, free)
+        try:
+            return isolating(covariances, graph, point, self.issues, "a keyframe fold")
+        except RuntimeError:
+            self.issues["object given a weak covariance at a keyframe fold"] += len(keys)
+            return [np.eye(2) * FREE_SIGMA**2 for _ in keys]
 
     def _marginal(
         self, graph: gtsam.NonlinearFactorGraph, point: gtsam.Values, window: set[int]
@@ -305,7 +396,11 @@ class IncrementalBackend(BackendBase):
         for key in point.keys():  # noqa: SIM118
             if key not in window:
                 insert_value(kept, key, value_array(point, key))
-        _, remaining = graph.linearize(point).eliminatePartialMultifrontal(sorted(window))
+
+        def eliminated(graph: gtsam.NonlinearFactorGraph) -> gtsam.GaussianFactorGraph:
+            return graph.linearize(point).eliminatePartialMultifrontal(sorted(window))[1]
+
+        remaining = isolating(eliminated, graph, point, self.issues, "a keyframe fold")
         return gtsam.LinearContainerFactor.ConvertLinearGraph(remaining, kept)
 
     def refine(self) -> None:
