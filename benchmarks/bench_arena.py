@@ -94,6 +94,7 @@ class Score:
     wall_s: float
     survey_s: float
     attribute: float | None  # accuracy of the mapped landmarks' attribute, if there is one
+    noise: dict[str, float] | None = None  # the sigma factors the run estimated
 
     @property
     def real_time(self) -> float:
@@ -151,6 +152,7 @@ def score(result: RunResult, world: ClockedWorld, records: list[Record], survey_
         wall_s=result.wall_seconds,
         survey_s=survey_s,
         attribute=attribute,
+        noise=(result.noise or {}).get("sigma_factors"),
     )
 
 
@@ -288,6 +290,8 @@ def main() -> None:
                 done[key] = (name, res)
                 if issues:
                     console.print(f"  {name}: issues {issues}")
+                if isinstance(res, Score) and res.noise:
+                    console.print(f"  {name}: noise scales {res.noise}")
                 row = cells(name, seed, res) if isinstance(res, Score) else res
             console.print("  " + " | ".join(row))  # as it comes, in case the run is cut short
             table.add_row(*row)

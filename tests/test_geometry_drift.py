@@ -5,11 +5,13 @@ import numpy as np
 import pytest
 
 from agrislam.geometry import se2
+from agrislam.geometry.calibration import NoiseScale
 from agrislam.geometry.drift import adjoint, since_seen
 from agrislam.geometry.odometry import OdometryChain
 
 Q = np.diag([0.02**2, 0.01**2, 0.01**2])  # per step: x, y, heading
 STEP = np.array([0.5, 0.0, 0.04])  # a gentle left curve
+CONFIGURED = NoiseScale.configured()  # the chain keeps its covariance in parts
 
 
 def test_adjoint_moves_a_perturbation_across_the_pose():
@@ -39,7 +41,8 @@ def test_the_drift_since_an_object_was_seen_matches_monte_carlo():
     seen_at, seen_drift = chain.pose.copy(), chain.drift.copy()
     chain_after(chain, steps_after)
     detection = np.array([[6.0, 2.0]])  # in the robot's frame now
-    cov = since_seen(chain.pose, chain.drift, seen_drift[None], np.array([True]), detection, 0.0)
+    now, then = CONFIGURED.odometry(chain.drift), CONFIGURED.odometry(seen_drift)
+    cov = since_seen(chain.pose, now, then[None], np.array([True]), detection, 0.0)
 
     # sample the chain from where the object was seen to now; the map frame is the
     # dead-reckoning frame turned by -heading now (map_heading = 0)
@@ -61,7 +64,8 @@ def test_the_drift_since_an_object_was_seen_matches_monte_carlo():
 def test_objects_without_a_chain_to_the_robot_add_no_drift():
     chain = chain_after(OdometryChain(), 1)
     seen = np.stack([np.zeros((3, 3)), np.eye(3)])
-    cov = since_seen(chain.pose, chain.drift, seen, np.array([True, False]), np.ones((1, 2)), 0.0)
+    now = CONFIGURED.odometry(chain.drift)
+    cov = since_seen(chain.pose, now, seen, np.array([True, False]), np.ones((1, 2)), 0.0)
     assert cov.shape == (1, 2, 2, 2)
     assert np.linalg.eigvalsh(cov[0, 0]).min() > 0 and np.all(cov[0, 1] == 0)
 
@@ -71,10 +75,10 @@ def test_the_chain_composes_increments_between_pose_nodes():
     chain.start(np.zeros(3), 0.0)
     chain.move(1.0, STEP, Q)
     chain.move(2.0, STEP, Q)
-    delta, cov = chain.take_pending()
+    delta, parts = chain.take_pending()
     expected, expected_cov = se2.compose_increments(STEP, Q, STEP, Q)
     np.testing.assert_allclose(delta, expected)
-    np.testing.assert_allclose(cov, expected_cov)
+    np.testing.assert_allclose(CONFIGURED.odometry(parts), expected_cov)  # parts sum to it
     assert chain.take_pending() is None  # nothing moved since
     times, poses = chain.track()
     assert times.tolist() == [0.0, 1.0, 2.0]

@@ -36,27 +36,40 @@ def test_retire_notifies_subscribers_and_resolve_follows_merges():
     assert objects.young.tolist() == [False, False, False, True]
 
 
+def parts(scale: float) -> np.ndarray:
+    """Chain drift parts (translation, heading, cross) of a chain that came `scale` far."""
+    return scale * np.stack([np.eye(3), np.eye(3), np.zeros((3, 3))])
+
+
+def seen(objects, ids, robot, drift, xy=(0.0, 0.0)):
+    n = len(ids)
+    objects.seen(np.array(ids), robot, drift, np.tile(xy, (n, 1)), np.tile(np.eye(2), (n, 1, 1)))
+
+
 def test_last_seen_belongs_to_the_robot_that_saw_it_last():
     objects = table()
     objects.add(3, 0.0)
-    objects.seen(np.array([0, 1]), robot=0, drift=np.eye(3))
-    objects.seen(np.array([1, 2]), robot=1, drift=2 * np.eye(3))
-    known, drift = objects.last_seen(np.array([0, 1, 2]), robot=0)
-    assert known.tolist() == [True, False, False]
-    np.testing.assert_array_equal(drift[0], np.eye(3))
-    assert np.all(drift[1:] == 0)
+    seen(objects, [0, 1], 0, parts(1.0), xy=(1.0, 2.0))
+    seen(objects, [1, 2], 1, parts(2.0))
+    then = objects.last_seen(np.array([0, 1, 2]), robot=0)
+    assert then.known.tolist() == [True, False, False]
+    np.testing.assert_array_equal(then.drift[0], parts(1.0))
+    np.testing.assert_array_equal(then.xy[0], [1.0, 2.0])  # in its dead-reckoning frame
+    assert np.all(then.drift[1:] == 0)
     assert objects.n_frames.tolist() == [1, 2, 1]
     objects.retire(np.array([0]), STATUS_PRUNED)
-    assert objects.last_seen(np.array([0]), robot=0)[0].tolist() == [False]
+    assert objects.last_seen(np.array([0]), robot=0).known.tolist() == [False]
 
 
 def test_a_merged_object_was_last_seen_when_either_was():
     objects = table()
     objects.add(3, 0.0)
-    objects.seen(np.array([0]), robot=0, drift=np.zeros((3, 3)))  # seen at the start
-    objects.seen(np.array([1]), robot=0, drift=np.eye(3))  # its duplicate, seen later
+    seen(objects, [0], 0, parts(0.0))  # seen at the start
+    seen(objects, [1], 0, parts(1.0), xy=(3.0, 0.0))  # its duplicate, seen later
     objects.absorb(keep=0, drop=1)
-    np.testing.assert_array_equal(objects.last_seen(np.array([0]), 0)[1][0], np.eye(3))
-    objects.seen(np.array([2]), robot=1, drift=np.zeros((3, 3)))  # another robot's
+    then = objects.last_seen(np.array([0]), 0)
+    np.testing.assert_array_equal(then.drift[0], parts(1.0))
+    np.testing.assert_array_equal(then.xy[0], [3.0, 0.0])  # the sighting moves along
+    seen(objects, [2], 1, parts(0.0))  # another robot's
     objects.absorb(keep=0, drop=2)
-    assert objects.last_seen(np.array([0]), 1)[0].tolist() == [True]
+    assert objects.last_seen(np.array([0]), 1).known.tolist() == [True]

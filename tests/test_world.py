@@ -261,3 +261,34 @@ def test_a_field_prior_without_a_row_spacing_leaves_the_rows_alone(spacing):
     assert world.association.d_inter == AgrislamConfig().association.d_inter
     assert any("row_spacing" in issue for issue in world.issues)
     assert len(world.snapshot().objects) == len(PLANTS)
+
+
+def test_a_survey_without_a_field_prior_is_mapped_as_point_landmarks():
+    """Issue 11: the paper's defaults are for a crop field; without a field prior the
+    gate is the whole innovation at 99 %, d_inter comes from the detection noise (three
+    sigmas of its sharpest axis) and rows are off, each unless the config sets it."""
+    world = WorldModel(AgrislamConfig())
+    assert world.rows is not None  # not decided before the survey says what it is
+    world.process(Detections(0.0, "r1", seen_from(np.zeros(3), PLANTS)))
+    cfg = world.association
+    assert cfg.innovation_gate and cfg.gate_chi2 == pytest.approx(9.21)
+    assert cfg.d_inter == pytest.approx(3.0 * np.sqrt(0.002))
+    assert world.rows is None
+    assert world.config.association.d_inter == 0.2  # the config itself is not written
+
+
+def test_a_field_prior_keeps_the_papers_defaults_and_the_config_wins():
+    world = WorldModel(AgrislamConfig())
+    world.process(Meta(field=FieldPrior(1.0, 0.3)))
+    world.process(Detections(0.0, "r1", seen_from(np.zeros(3), PLANTS)))
+    assert not world.association.innovation_gate and world.association.d_inter == 0.15
+    assert world.rows is not None
+    chosen = WorldModel(
+        AgrislamConfig.model_validate(
+            {"association": {"gate_chi2": 4.0, "d_inter": 0.1}, "rows": {"enabled": True}}
+        )
+    )
+    chosen.process(Detections(0.0, "r1", seen_from(np.zeros(3), PLANTS)))
+    cfg = chosen.association
+    assert cfg.innovation_gate and cfg.gate_chi2 == 4.0 and cfg.d_inter == 0.1
+    assert chosen.rows is not None

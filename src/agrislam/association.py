@@ -20,6 +20,7 @@ from scipy.optimize import linear_sum_assignment
 from scipy.spatial import cKDTree
 
 from agrislam.config import AssociationConfig, FieldSchema
+from agrislam.geometry.calibration import mahalanobis
 from agrislam.records import DiscreteMeasurement, Measurement
 from agrislam.semantics.beliefs import BeliefTable
 
@@ -107,11 +108,7 @@ def distance_term(
     e = object_xy[None, :, :] - detection_xy[:, None, :]  # e_mn = z_n - z_m
     euclidean = np.einsum("mki,mki->mk", e, e) / d_inter**2
     k = np.broadcast_to(covariance, (*e.shape[:2], 2, 2))
-    a, b, c = k[..., 0, 0], k[..., 0, 1], k[..., 1, 1]
-    ex, ey = e[..., 0], e[..., 1]
-    # closed-form 2x2 inverse
-    mahalanobis = (c * ex * ex - 2 * b * ex * ey + a * ey * ey) / (a * c - b * b)
-    return np.minimum(euclidean, mahalanobis / gate_chi2)
+    return np.minimum(euclidean, mahalanobis(e, k) / gate_chi2)
 
 
 def innovation_covariance(

@@ -322,6 +322,10 @@ def _summary(result: RunResult, out: Path) -> None:
             f"median {np.median(total):.1f}, p95 {np.percentile(total, 95):.1f}, "
             f"max {total.max():.1f}",
         )
+    noise = result.noise
+    if noise and noise["enabled"]:
+        factors = ", ".join(f"{k} x{v:.2f}" for k, v in noise["sigma_factors"].items())
+        table.add_row("noise scales", f"{factors} ({noise['pairs_used']} pairs of sightings)")
     console.print(table)
     for issue, count in sorted(result.issues.items()):
         console.print(f"[yellow]{count} x {issue}[/]")

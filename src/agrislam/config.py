@@ -317,6 +317,42 @@ class InputLimits(_Strict):
     )
 
 
+class CalibrationConfig(_Strict):
+    """Noise that calibrates itself (geometry/calibration.py): the scales of the detection,
+    odometry translation and odometry heading noise, estimated from the run's own pairs of
+    sightings of an object and used from then on; the configured noise is the start."""
+
+    enabled: bool = Field(True, description="estimate the noise scales online and use them")
+    min_pairs: int = Field(200, ge=10, description="pairs of sightings before a first estimate")
+    update_every: int = Field(200, ge=1, description="new pairs between estimates")
+    max_pairs: int = Field(20_000, ge=100, description="the latest pairs an estimate uses")
+    tie_odometry: bool = Field(
+        True,
+        description="one factor on the odometry's translation and heading noise: from "
+        "re-sightings alone the two drifts are hard to tell apart, and estimated apart "
+        "one of them takes the other's share",
+    )
+    ratio: float = Field(
+        0.25,
+        gt=0.0,
+        le=1.0,
+        description="a pair counts only if every other object around lies 1/ratio times "
+        "farther from the detection than the pair's two sightings from each other",
+    )
+    sigma_bounds: tuple[PositiveFloat, PositiveFloat] = Field(
+        (1.0, 30.0),
+        description="the smallest and largest sigma factor an estimate may take; by default "
+        "a record's or the configured noise is a floor: noise found smaller is not used, "
+        "since a model too sure of itself splits objects and a safe one does not",
+    )
+
+    @model_validator(mode="after")
+    def _ordered(self) -> CalibrationConfig:
+        if self.sigma_bounds[0] > self.sigma_bounds[1]:
+            raise ValueError(f"sigma_bounds {self.sigma_bounds} must be (low, high)")
+        return self
+
+
 class SensorDefaults(_Strict):
     """Uncertainties used when a record does not carry its own, and the bounds of what a
     record may carry (`limits`)."""
@@ -344,6 +380,10 @@ class SensorDefaults(_Strict):
     limits: InputLimits = Field(
         default_factory=InputLimits,
         description="bounds of what a source accepts from a record (sources/validate.py)",
+    )
+    calibration: CalibrationConfig = Field(
+        default_factory=CalibrationConfig,
+        description="noise scales estimated from the run's own re-observations (issue 11)",
     )
 
 
@@ -389,6 +429,19 @@ class AssociationConfig(_Strict):
         description="the Mahalanobis term is divided by this (the paper: 1, a one-sigma "
         "gate); e.g. 9.21 accepts 99 % of true associations of a 2D position",
     )
+    landmark_defaults: bool = Field(
+        True,
+        description="a survey without a field prior is not the crop field the paper's "
+        "defaults are for: unless set here, it is gated on the whole innovation "
+        "(innovation_gate, at landmark_gate_chi2, over landmark_sigma_max), d_inter is three "
+        "of the detections' sharpest sigma, and rows are off unless rows.enabled is set",
+    )
+    landmark_gate_chi2: float = Field(
+        9.21, gt=0.0, description="the gate without a field prior: 99 % of a 2D position"
+    )
+    landmark_sigma_max: float = Field(
+        3.0, gt=0.0, description="m, gate_sigma_max without a field prior"
+    )
     gate_sigma_max: float = Field(
         1.0, gt=0.0, description="m; largest object position sigma the spatial gate allows for"
     )
@@ -419,6 +472,13 @@ class SlamConfig(_Strict):
         ge=0,
         description="steps between keyframes; older poses and objects are folded onto the "
         "keyframes so a step's cost stays bounded; 0 = plain iSAM2 over the whole graph",
+    )
+    covariance_reuse_steps: int = Field(
+        10,
+        ge=1,
+        description="an object's marginal covariance read for association serves this many "
+        "steps (each read is a Bayes-tree traversal; a frame's candidates each needed one, "
+        "issue 11); 1 = read every step",
     )
     refine_turn_deg: float = Field(
         3.0,

@@ -4,8 +4,9 @@ arrays grown by doubling (DESIGN.md "State layout").
 It owns what the pipeline knows of an object apart from its position (the back end's)
 and its beliefs (its `BeliefTable`, the table's semantic columns, with the measurement
 count and last update the interest heuristic reads): whether it is active, merged into
-another or pruned; in how many frames it was seen and which robot saw it last, with that
-robot's odometry drift then (geometry/drift.py); whether the pruner still watches it.
+another or pruned; in how many frames it was seen and which robot saw it last, where (in
+that robot's dead-reckoning frame) and with what drift of its chain then (geometry/drift.py,
+geometry/calibration.py); whether the pruner still watches it.
 `retire` is the one way out of the map: the parts that keep state of their own per
 object (the spatial index) subscribe to it.
 """
@@ -13,6 +14,7 @@ object (the spatial index) subscribe to it.
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -20,6 +22,16 @@ from agrislam.semantics.beliefs import BeliefTable
 from agrislam.snapshot import STATUS_ACTIVE
 
 NO_ROBOT = -1
+
+
+@dataclass(frozen=True, slots=True)
+class Sightings:
+    """Where one robot last saw objects, as far as it was the last to see them."""
+
+    known: np.ndarray  # (k,) the robot was the last to see each object
+    drift: np.ndarray  # (k, 3, 3, 3) its chain's drift parts then (zeros where not known)
+    xy: np.ndarray  # (k, 2) the detection, in the robot's dead-reckoning frame
+    cov: np.ndarray  # (k, 2, 2) its configured covariance in that frame
 
 
 class ObjectTable:
@@ -33,7 +45,9 @@ class ObjectTable:
         self._merged_into = np.full(capacity, -1, dtype=np.int64)
         self._n_frames = np.zeros(capacity, dtype=np.int64)
         self._seen_by = np.full(capacity, NO_ROBOT, dtype=np.int64)
-        self._seen_drift = np.zeros((capacity, 3, 3))
+        self._seen_drift = np.zeros((capacity, 3, 3, 3))
+        self._seen_xy = np.zeros((capacity, 2))
+        self._seen_cov = np.zeros((capacity, 2, 2))
         self._young = np.zeros(capacity, dtype=bool)
         self._on_retire: list[Callable[[np.ndarray], None]] = []
 
@@ -79,12 +93,17 @@ class ObjectTable:
         self._n = len(self.beliefs)
         return ids
 
-    def seen(self, ids: np.ndarray, robot: int, drift: np.ndarray) -> None:
+    def seen(
+        self, ids: np.ndarray, robot: int, drift: np.ndarray, xy: np.ndarray, cov: np.ndarray
+    ) -> None:
         """The objects (unique ids) were seen in one frame of robot `robot` (its index),
-        whose dead-reckoning chain had accumulated `drift` (3x3) then."""
+        at `xy` (k, 2) with covariances `cov` (k, 2, 2) in its dead-reckoning frame, whose
+        chain had accumulated the drift parts `drift` (3, 3, 3) then."""
         self._n_frames[ids] += 1
         self._seen_by[ids] = robot
         self._seen_drift[ids] = drift
+        self._seen_xy[ids] = xy
+        self._seen_cov[ids] = cov
 
     def absorb(self, keep: int, drop: int) -> None:
         """`keep` now stands for `drop` too: it was last seen when `drop` was, if later
@@ -92,10 +111,13 @@ class ObjectTable:
         robot = self._seen_by[drop]
         if robot == NO_ROBOT:
             return
-        later = np.trace(self._seen_drift[drop]) > np.trace(self._seen_drift[keep])
+        later = (
+            self._seen_drift[drop].trace(axis1=1, axis2=2).sum()
+            > self._seen_drift[keep].trace(axis1=1, axis2=2).sum()
+        )
         if self._seen_by[keep] != robot or later:
-            self._seen_by[keep] = robot
-            self._seen_drift[keep] = self._seen_drift[drop]
+            for column in (self._seen_by, self._seen_drift, self._seen_xy, self._seen_cov):
+                column[keep] = column[drop]
 
     def retire(self, ids: np.ndarray, status: int, into: int = -1) -> None:
         """Objects leave the map: merged into `into`, or pruned. Subscribers hear of it."""
@@ -129,11 +151,12 @@ class ObjectTable:
                 return ids
             ids[moved] = target[moved]
 
-    def last_seen(self, ids: np.ndarray, robot: int) -> tuple[np.ndarray, np.ndarray]:
-        """(k,) whether `robot` (index) was the last to see each object, and (k, 3, 3) its
-        chain's drift then (zeros where it was not)."""
+    def last_seen(self, ids: np.ndarray, robot: int) -> Sightings:
+        """Where and with what drift `robot` (index) last saw each object, if it was the
+        last to see it."""
         known = self._seen_by[ids] == robot
-        return known, np.where(known[:, None, None], self._seen_drift[ids], 0.0)
+        drift = np.where(known[:, None, None, None], self._seen_drift[ids], 0.0)
+        return Sightings(known, drift, self._seen_xy[ids], self._seen_cov[ids])
 
     # ------------------------------------------------------------------ storage
     def _reserve(self, n: int) -> None:
@@ -147,6 +170,8 @@ class ObjectTable:
         self._n_frames = _grown(self._n_frames, size, 0)
         self._seen_by = _grown(self._seen_by, size, NO_ROBOT)
         self._seen_drift = _grown(self._seen_drift, size, 0.0)
+        self._seen_xy = _grown(self._seen_xy, size, 0.0)
+        self._seen_cov = _grown(self._seen_cov, size, 0.0)
         self._young = _grown(self._young, size, False)
 
 

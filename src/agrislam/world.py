@@ -30,6 +30,7 @@ from agrislam.association import (
 from agrislam.config import AgrislamConfig, AssociationConfig, FieldSchema
 from agrislam.geometry import se2
 from agrislam.geometry.backend import make_backend
+from agrislam.geometry.calibration import NoiseCalibration
 from agrislam.geometry.depth_bias import DepthBiasEstimator
 from agrislam.geometry.drift import since_seen
 from agrislam.geometry.noise import SensorModel
@@ -48,6 +49,7 @@ STAGES = (
     "add_pose",  # the robot's pose node and odometry factor
     "place",  # detections into the map frame, with their covariances
     "associate",  # gate, association matrix, GNN; new objects
+    "noise",  # pairs of sightings of re-observed objects scale the noise (calibration.py)
     "beliefs",  # Bayes / Kalman updates, each belief brought to t first
     "optimise",  # measurement factors and the back end's incremental solve
     "index",  # the spatial index follows the objects the solve moved
@@ -100,6 +102,7 @@ class WorldModel:
         self.schema: FieldSchema | None = self.config.field_schema()
         self.association: AssociationConfig = self.config.association
         self.sensor = SensorModel(self.config.sensor)
+        self.noise = NoiseCalibration(self.config.sensor.calibration)
         self.objects = ObjectTable(BeliefTable(self.schema, self.config.semantics))
         self.backend = make_backend(self.config.slam, self.config.rows)
         self.rows = RowTracker(self.config.rows) if self.config.rows.enabled else None
@@ -110,6 +113,8 @@ class WorldModel:
         self.anchor = None
         self.issues: Counter[str] = self.backend.issues  # with what the back end isolated
         self.robots: dict[str, OdometryChain] = {}
+        self._field_prior: FieldPrior | None = None
+        self._settled = False  # the defaults that depend on the survey are chosen
         self._timer = _Timer()
 
     @property
@@ -147,6 +152,7 @@ class WorldModel:
     def _use_field_prior(self, prior: FieldPrior) -> None:
         """What the survey knows of its field, unless the run's config says otherwise."""
         configured = self.config.association
+        self._field_prior = prior
         if prior.row_spacing is not None and not prior.row_spacing > 0.0:
             # sources refuse such a meta; a prior built in code must not reach the rows
             self.issues[f"field prior row_spacing {prior.row_spacing} ignored"] += 1
@@ -157,6 +163,28 @@ class WorldModel:
             self.association = configured.model_copy(update={"d_inter": d_inter})
         if self.rows is not None:
             self.rows.use_prior(prior)
+
+    def _settle_defaults(self, detections: list[Detection]) -> None:
+        """At the first detections: a survey without a field prior is mapped as point
+        landmarks (`association.landmark_defaults`), each default the config sets kept."""
+        self._settled = True
+        configured = self.config.association
+        if self._field_prior is not None or not configured.landmark_defaults:
+            return
+        chosen = configured.model_fields_set
+        cov = np.stack([self.sensor.detection_covariance(d) for d in detections])
+        sharpest = float(np.median(np.sqrt(np.linalg.eigvalsh(cov)[:, 0])))
+        generic = {
+            "innovation_gate": True,
+            "gate_chi2": configured.landmark_gate_chi2,
+            "gate_sigma_max": configured.landmark_sigma_max,
+            # nearer than three sigmas of its sharpest axis, a detection cannot tell two apart
+            "d_inter": 3.0 * sharpest,
+        }
+        update = {k: v for k, v in generic.items() if k not in chosen}
+        self.association = self.association.model_copy(update=update)
+        if self.rows is not None and "enabled" not in self.config.rows.model_fields_set:
+            self.rows = None
 
     def add_odometry(self, odom: Odometry) -> None:
         """Compose the motion into the robot's pending increment (DESIGN step 2)."""
@@ -172,6 +200,8 @@ class WorldModel:
         t, robot, timer = frame.t, frame.robot, self._timer
         with timer("check"):
             detections = self._within_schema(frame)
+            if not self._settled and detections:
+                self._settle_defaults(detections)
         with timer("add_pose"):
             self._add_pose(robot, t)
         with timer("place"):
@@ -180,14 +210,17 @@ class WorldModel:
             object_ids = self._associate(robot, placed, t)
             new_ids = self._create_objects(object_ids, placed, t)
             seen = np.unique(object_ids)
-            self.objects.seen(seen, self._robot_index(robot), self.robots[robot].drift)
+        with timer("noise"):
+            self._sighted(robot, placed, object_ids, new_ids)
         with timer("beliefs"):
             self.beliefs.update(object_ids, [d.attributes for d in detections], t)
         with timer("optimise"):
+            sigma_scale = float(self.noise.scale.sigma[0])
             for det, obj, xy, cov in zip(
                 detections, object_ids.tolist(), placed.robot_xy, placed.robot_cov, strict=True
             ):
-                self.backend.add_observation(robot, obj, self.sensor.measurement(det, xy, cov))
+                measurement = self.sensor.measurement(det, xy, cov, sigma_scale)
+                self.backend.add_observation(robot, obj, measurement)
             self.backend.update()
         with timer("index"):
             self._refresh_index(seen)
@@ -218,7 +251,8 @@ class WorldModel:
     def _add_pose(self, robot: str, t: float) -> None:
         pending = self._chain(robot, t).take_pending()
         if pending is not None:
-            self.backend.add_odometry(robot, t, *pending)
+            delta, parts = pending
+            self.backend.add_odometry(robot, t, delta, self.noise.scale.odometry(parts))
 
     def _place(self, robot: str, detections: list[Detection]) -> PlacedDetections:
         """Detections into the map frame with their covariances (DESIGN step 3), after
@@ -227,7 +261,9 @@ class WorldModel:
             nothing, no_cov = np.empty((0, 2)), np.empty((0, 2, 2))
             return PlacedDetections(nothing, no_cov, [], nothing, no_cov)
         xy = self.depth_bias.correct(np.stack([d.position() for d in detections]))
-        cov = np.stack([self.sensor.detection_covariance(d) for d in detections])
+        cov = self.noise.scale.detection(
+            np.stack([self.sensor.detection_covariance(d) for d in detections])
+        )
         pose = self.backend.current_pose(robot)
         map_xy, map_cov = se2.to_map_frame(pose, xy, cov)
         pose_cov = None
@@ -243,10 +279,7 @@ class WorldModel:
         cfg = self.association
         if len(placed) == 0:
             return np.empty(0, dtype=int)
-        n_measured = max(len(m) for m in placed.measurements) if cfg.use_semantics else 0
-        sigma = cfg.gate_sigma_max * np.sqrt(cfg.gate_chi2)  # the Mahalanobis term's reach
-        radius = max_association_distance(cfg.d_inter, sigma, cfg.w_sem, n_measured)
-        candidates = self.index.query(placed.xy, radius)
+        candidates = self.index.query(placed.xy, self._reach(placed))
         if len(candidates) == 0:
             return np.full(len(placed), -1)
         object_cov = self.backend.object_covariances(candidates)
@@ -268,16 +301,67 @@ class WorldModel:
         chosen = assign(matrix)
         return np.where(chosen >= 0, candidates[np.maximum(chosen, 0)], -1)
 
+    def _reach(self, placed: PlacedDetections) -> float:
+        """The farthest an object may be from a detection and still be associated."""
+        cfg = self.association
+        n_measured = max(len(m) for m in placed.measurements) if cfg.use_semantics else 0
+        sigma = cfg.gate_sigma_max * np.sqrt(cfg.gate_chi2)  # the Mahalanobis term's reach
+        return max_association_distance(cfg.d_inter, sigma, cfg.w_sem, n_measured)
+
     def _drift_since_seen(
         self, robot: str, candidates: np.ndarray, placed: PlacedDetections
     ) -> tuple[np.ndarray, np.ndarray]:
         """(m, k, 2, 2) what the robot's drift since it last saw each candidate adds to
         each detection, and (k,) whether it has such a chain (geometry/drift.py)."""
-        known, seen_drift = self.objects.last_seen(candidates, self._robot_index(robot))
-        chain = self.robots[robot]
+        then = self.objects.last_seen(candidates, self._robot_index(robot))
+        chain, scale = self.robots[robot], self.noise.scale
         heading = self.backend.current_pose(robot)[2]
-        drift = since_seen(chain.pose, chain.drift, seen_drift, known, placed.robot_xy, heading)
-        return drift, known
+        drift = since_seen(
+            chain.pose,
+            scale.odometry(chain.drift),
+            scale.odometry(then.drift),
+            then.known,
+            placed.robot_xy,
+            heading,
+        )
+        return drift, then.known
+
+    def _sighted(
+        self, robot: str, placed: PlacedDetections, object_ids: np.ndarray, new_ids: np.ndarray
+    ) -> None:
+        """The frame's sightings, in the robot's dead-reckoning frame: with the robot's
+        earlier sightings of the objects around, they scale the noise
+        (geometry/calibration.py); then the objects were last seen here."""
+        chain, index = self.robots[robot], self._robot_index(robot)
+        configured = placed.robot_cov / self.noise.scale.variance[0]
+        xy, cov = se2.to_map_frame(chain.pose, placed.robot_xy, configured)
+        if self.noise.enabled and len(placed):
+            self._pair_sightings(placed, object_ids, new_ids, index, (xy, cov, chain.drift))
+        self.objects.seen(object_ids, index, chain.drift, xy, cov)
+
+    def _pair_sightings(
+        self,
+        placed: PlacedDetections,
+        object_ids: np.ndarray,
+        new_ids: np.ndarray,
+        robot: int,
+        frame: tuple[np.ndarray, np.ndarray, np.ndarray],
+    ) -> None:
+        """The frame's detections with the robot's own last sightings of the objects
+        around, for the noise calibration, with what it needs to tell a sure pair."""
+        around = self.objects.active(self.index.query(placed.xy, 3.0 * self._reach(placed)))
+        around = around[~np.isin(around, new_ids)]
+        if len(around) < 1:
+            return
+        dist = np.linalg.norm(
+            placed.xy[:, None, :] - self.backend.object_positions(around)[None], axis=2
+        )
+        then = self.objects.last_seen(around, robot)
+        k = then.known
+        eligible = object_ids[:, None] == around[k][None, :]
+        self.noise.observe(
+            *frame, (then.xy[k], then.cov[k], then.drift[k]), eligible, other_than(dist)[:, k]
+        )
 
     def _create_objects(
         self, object_ids: np.ndarray, placed: PlacedDetections, t: float
@@ -433,3 +517,11 @@ class WorldModel:
         if self.schema is None:
             return []
         return list(self.schema.discrete if kind == "discrete" else self.schema.continuous)
+
+
+def other_than(dist: np.ndarray) -> np.ndarray:
+    """(m, k) for each row's column the smallest entry of the row in the other columns."""
+    order = np.sort(dist, axis=1)
+    second = order[:, 1] if dist.shape[1] > 1 else np.full(len(dist), np.inf)
+    nearest = dist == order[:, :1]
+    return np.where(nearest, second[:, None], order[:, :1])

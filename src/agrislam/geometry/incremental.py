@@ -164,7 +164,7 @@ class IncrementalBackend(BackendBase):
         self._retired_poses = Retired(3)  # each pose relative to its keyframe
         self._keyframes: dict[str, list[int]] = {}  # robot -> its keyframes, oldest first
         self._last_seen: dict[int, tuple[str, int]] = {}  # object key -> (robot, step)
-        self._cov_cache: dict[int, np.ndarray] = {}
+        self._cov_cache: dict[int, tuple[int, np.ndarray]] = {}  # key -> (step, covariance)
         self._step = 0
         self._window_start = 0
         self._folded_heading: dict[int, float] = {}  # keyframe -> heading when folded onto
@@ -287,7 +287,9 @@ class IncrementalBackend(BackendBase):
         filled = self._pending.flush(self._isam, extra)
         if filled is not None:
             self._slots.fill(filled)
-            self._cov_cache.clear()
+            for _, entry in filled:  # what the update measured is read again
+                for key in entry.keys:
+                    self._cov_cache.pop(key, None)
 
     def _fold(self) -> None:
         """Keyframe each robot's latest pose; marginalise the rest of the window out."""
@@ -476,9 +478,12 @@ class IncrementalBackend(BackendBase):
         return self._marginal_covariance(self.graph.robot(robot).keys[-1])
 
     def _marginal_covariance(self, key: int) -> np.ndarray:
-        if key not in self._cov_cache:
-            self._cov_cache[key] = self._isam.marginalCovariance(key)
-        return self._cov_cache[key]
+        """A node's marginal covariance, read again from iSAM2 (a Bayes-tree traversal)
+        once it is `slam.covariance_reuse_steps` steps old or a new factor touched it."""
+        cached = self._cov_cache.get(key)
+        if cached is None or self._step - cached[0] >= self.slam.covariance_reuse_steps:
+            cached = self._cov_cache[key] = (self._step, self._isam.marginalCovariance(key))
+        return cached[1]
 
     def _frames(self, keyframes: np.ndarray) -> np.ndarray:
         """(k, 3) current pose of each of `keyframes`, each distinct one read once."""

@@ -94,10 +94,14 @@ class SensorModel:
             det.position(), sensor.detection_sigma_depth, sensor.detection_sigma_lateral
         )
 
-    def measurement(self, det: Detection, xy: np.ndarray, cov: np.ndarray) -> Measurement:
-        """The factor's measurement in the form the detection came in (xy: bias-corrected)."""
+    def measurement(
+        self, det: Detection, xy: np.ndarray, cov: np.ndarray, sigma_scale: float = 1.0
+    ) -> Measurement:
+        """The factor's measurement in the form the detection came in (xy: bias-corrected,
+        cov: scaled; a range and bearing's sigmas are scaled by `sigma_scale`)."""
         if det.range is not None and det.xy is None:
-            return RangeBearing(float(np.hypot(*xy)), det.bearing, *self.range_bearing_sigmas(det))
+            sigmas = sigma_scale * np.asarray(self.range_bearing_sigmas(det))
+            return RangeBearing(float(np.hypot(*xy)), det.bearing, *sigmas.tolist())
         return RelativePosition(xy, cov)
 
 

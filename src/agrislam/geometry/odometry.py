@@ -2,6 +2,8 @@
 since its last pose node, composed into one increment with its covariance; its
 dead-reckoning pose and track; and the drift its chain has accumulated
 (geometry/drift.py), which bounds how far it may have wandered since it saw an object.
+Covariances are kept as the parts the configured translation and heading noise build
+(geometry/calibration.py), so that the noise scales estimated later apply to all of it.
 """
 
 from __future__ import annotations
@@ -9,6 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from agrislam.geometry import se2
+from agrislam.geometry.calibration import odometry_parts
 from agrislam.geometry.drift import adjoint
 
 
@@ -22,8 +25,9 @@ class OdometryChain:
         self.start_sigma = start_sigma
         self.started = False  # added to the back end
         self.pose = np.zeros(3)  # dead reckoning now
-        self.drift = np.zeros((3, 3))  # C: prefix sum of Ad(P) Q Ad(P)^T (drift.py)
-        self._pending: tuple[np.ndarray, np.ndarray] | None = None  # composed delta, cov
+        # C: prefix sum of Ad(P) Q Ad(P)^T (drift.py), in the parts of Q (calibration.py)
+        self.drift = np.zeros((3, 3, 3))
+        self._pending: tuple[np.ndarray, np.ndarray] | None = None  # composed delta, parts
         self._odom_pose: np.ndarray | None = None  # last odometry-frame pose, if given
         self._track_t: list[float] = []
         self._track: list[np.ndarray] = []
@@ -43,17 +47,19 @@ class OdometryChain:
         return None if previous is None else se2.between(previous, pose)
 
     def move(self, t: float, delta: np.ndarray, cov: np.ndarray) -> None:
-        """Compose a motion increment into the pending one; dead reckoning follows."""
+        """Compose a motion increment of configured covariance `cov` into the pending one;
+        dead reckoning follows."""
+        parts = odometry_parts(cov)
         if self._pending is None:
-            self._pending = (delta, cov)
+            self._pending = (delta, parts)
         else:
-            self._pending = se2.compose_increments(*self._pending, delta, cov)
+            self._pending = se2.compose_increments(*self._pending, delta, parts)
         self.pose = se2.compose(self.pose, delta)
         self._record(t)
 
     def take_pending(self) -> tuple[np.ndarray, np.ndarray] | None:
-        """The increment since the last pose node and its covariance, or None if the robot
-        has not moved; the chain's drift grows by it (drift.py: C += Ad(P) Q Ad(P)^T)."""
+        """The increment since the last pose node and its covariance parts, or None if the
+        robot has not moved; the chain's drift grows by it (drift.py: C += Ad(P) Q Ad(P)^T)."""
         pending, self._pending = self._pending, None
         if pending is not None:
             ad = adjoint(self.pose)

@@ -1,0 +1,212 @@
+"""Noise that calibrates itself (issue 11): the scale of each noise term, estimated online
+from the run's own re-observations.
+
+A robot that sees an object again has, in its dead-reckoning frame, two positions of it:
+p_then and p_now (which detection is which object: `NoiseCalibration.observe`). Their
+difference d is detection noise twice and the chain's drift in between (drift.py), so, for
+a static object rightly paired,
+
+    Cov(d) = v_det (R_then + R_now) + v_trans J dC_trans J^T + v_head J dC_head J^T
+
+with R the configured detection covariances, dC the parts of the chain's prefix sum that
+the configured odometry's translation and heading noise build, J the point Jacobian at
+p_now, and v the variance factors this module estimates: the maximum-likelihood variance
+components, by Fisher scoring, over the pairs the run has seen, with the pairs an outlier
+test refuses (a wrong association, a moved object) left out. The configured values are the
+starting point (v = 1) and the factors are bounded, so a run with few pairs keeps them.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from agrislam.config import CalibrationConfig
+from agrislam.geometry import se2
+
+TERMS = ("detection", "translation", "heading")
+# the parts of an odometry covariance, each scaled by its own factor (`NoiseScale.weights`)
+TRANSLATION, HEADING, CROSS = 0, 1, 2
+FISHER_ITERATIONS = 8
+MAX_STEP = 2.0  # the most one estimate changes a sigma factor by
+
+
+def odometry_parts(cov: np.ndarray) -> np.ndarray:
+    """(3, 3, 3) a motion increment's covariance (x, y, theta) split into what its
+    translation noise, its heading noise and their correlation build; they sum to `cov`."""
+    parts = np.zeros((3, 3, 3))
+    parts[TRANSLATION, :2, :2] = cov[:2, :2]
+    parts[HEADING, 2, 2] = cov[2, 2]
+    parts[CROSS] = cov - parts[TRANSLATION] - parts[HEADING]
+    return parts
+
+
+@dataclass
+class NoiseScale:
+    """Variance factors on the configured noise terms (1: as configured)."""
+
+    variance: np.ndarray  # (3,) detection, translation, heading
+
+    @classmethod
+    def configured(cls) -> NoiseScale:
+        return cls(np.ones(len(TERMS)))
+
+    @property
+    def sigma(self) -> np.ndarray:
+        return np.sqrt(self.variance)
+
+    @property
+    def weights(self) -> np.ndarray:
+        """(3,) the factor on each odometry part: the correlation scales with both sigmas."""
+        v_t, v_h = self.variance[1], self.variance[2]
+        return np.array([v_t, v_h, np.sqrt(v_t * v_h)])
+
+    def odometry(self, parts: np.ndarray) -> np.ndarray:
+        """(..., 3, 3) the scaled covariance of odometry parts (..., 3, 3, 3)."""
+        return np.einsum("p,...pij->...ij", self.weights, parts)
+
+    def detection(self, cov: np.ndarray) -> np.ndarray:
+        return self.variance[0] * cov
+
+    def as_dict(self) -> dict[str, float]:
+        return {term: float(s) for term, s in zip(TERMS, self.sigma, strict=True)}
+
+
+class NoiseCalibration:
+    """The running estimate of `NoiseScale` from pairs of sightings (module docstring)."""
+
+    def __init__(self, config: CalibrationConfig) -> None:
+        self.config = config
+        self.scale = NoiseScale.configured()
+        self._d = np.empty((0, 2))
+        self._components = np.empty((0, len(TERMS), 2, 2))  # R, J dC_trans J^T, J dC_head J^T
+        self._new = 0
+        self.pairs_seen = 0
+        self.pairs_used = 0
+        self.updates = 0
+
+    @property
+    def enabled(self) -> bool:
+        return self.config.enabled
+
+    def observe(
+        self,
+        xy: np.ndarray,
+        cov: np.ndarray,
+        drift: np.ndarray,
+        seen: tuple[np.ndarray, np.ndarray, np.ndarray],
+        eligible: np.ndarray,
+        spacing: np.ndarray,
+    ) -> None:
+        """A frame of a robot: its detections (`pair_components`'s first arguments) with
+        the robot's own last sightings `seen` (xy, cov, drift) of k objects around them.
+
+        A detection pairs with the object the association chose for it (`eligible`
+        (m, k)) where that pair is `ratio` times nearer than any other object of the map
+        around (`spacing` (m, k): the map-frame distance from the detection to the
+        nearest object other than each), a test free of any noise scale."""
+        if not self.enabled or len(xy) == 0 or len(seen[0]) == 0:
+            return
+        i, j = np.nonzero(eligible)
+        if len(i) == 0:
+            return
+        d, comps = pair_components(xy[i], cov[i], drift, seen[0][j], seen[1][j], seen[2][j])
+        keep = np.linalg.norm(d, axis=1) <= self.config.ratio * spacing[i, j]
+        self.add_pairs(d[keep], comps[keep])
+
+    def add_pairs(self, d: np.ndarray, components: np.ndarray) -> None:
+        """Pairs of sightings: differences d (n, 2) and their covariance components
+        (n, 3, 2, 2), unscaled; the estimate is renewed every `update_every` pairs."""
+        if not self.enabled or len(d) == 0:
+            return
+        keep = self.config.max_pairs
+        self._d = np.concatenate([self._d, d])[-keep:]
+        self._components = np.concatenate([self._components, components])[-keep:]
+        self._new += len(d)
+        self.pairs_seen += len(d)
+        if len(self._d) >= self.config.min_pairs and self._new >= self.config.update_every:
+            self._new = 0
+            self.scale = NoiseScale(self.estimate(self.scale.variance))
+            self.updates += 1
+
+    def estimate(self, start: np.ndarray) -> np.ndarray:
+        """ML variance factors over the pairs kept, with the pairs that no noise explains
+        (a wrong association, a moved object) as a uniform outlier component: EM over
+        the pairs' share of each, Fisher scoring of the factors, from `start`."""
+        d, comps = self._d, self._components
+        v, inlier_share = start.copy(), 0.9
+        if self.config.tie_odometry:  # one factor on the chain's translation and heading
+            comps = np.stack([comps[:, 0], comps[:, 1] + comps[:, 2]], axis=1)
+            v = start[:2].copy()
+        lo, hi = (b**2 for b in self.config.sigma_bounds)
+        outlier_density = 1.0 / (np.pi * max(float(np.max(np.sum(d * d, axis=1))), 1e-12))
+        for _ in range(FISHER_ITERATIONS):
+            cov = np.einsum("c,ncij->nij", v, comps)
+            density = np.exp(-0.5 * mahalanobis(d, cov)) / (2 * np.pi * np.sqrt(det2(cov)))
+            inlier = inlier_share * density
+            weight = inlier / (inlier + (1.0 - inlier_share) * outlier_density)
+            inlier_share = float(weight.mean())
+            v = np.clip(v + fisher_step(d, comps, v, weight), lo, hi)
+        if self.config.tie_odometry:
+            v = np.array([v[0], v[1], v[1]])
+        # one estimate moves a sigma by at most MAX_STEP: a burst of odd pairs cannot
+        # throw the gates that the next pairs are drawn through
+        v = np.clip(v, start / MAX_STEP**2, start * MAX_STEP**2)
+        self.pairs_used = round(inlier_share * len(d))
+        return v
+
+    def report(self) -> dict[str, object]:
+        """The estimated sigma factors and what they rest on, for the summary and metrics."""
+        return {
+            "enabled": self.enabled,
+            "sigma_factors": self.scale.as_dict(),
+            "pairs_seen": self.pairs_seen,
+            "pairs_used": self.pairs_used,
+            "updates": self.updates,
+        }
+
+
+def mahalanobis(d: np.ndarray, cov: np.ndarray) -> np.ndarray:
+    """(...) d^T cov^-1 d of 2-vectors (..., 2) with their 2x2 covariances (closed form)."""
+    a, b, c = cov[..., 0, 0], cov[..., 0, 1], cov[..., 1, 1]
+    x, y = d[..., 0], d[..., 1]
+    return (c * x * x - 2 * b * x * y + a * y * y) / (a * c - b * b)
+
+
+def det2(cov: np.ndarray) -> np.ndarray:
+    return cov[..., 0, 0] * cov[..., 1, 1] - cov[..., 0, 1] * cov[..., 1, 0]
+
+
+def fisher_step(d: np.ndarray, comps: np.ndarray, v: np.ndarray, weight: np.ndarray) -> np.ndarray:
+    """One Fisher-scoring step of the variance components v of Cov(d) = sum_c v_c A_c,
+    each pair weighted: the score g_c = 1/2 sum w (d^T S^-1 A_c S^-1 d - tr(S^-1 A_c))
+    and the information F_cb = 1/2 sum w tr(S^-1 A_c S^-1 A_b), S = sum_c v_c A_c."""
+    s_inv = np.linalg.inv(np.einsum("c,ncij->nij", v, comps))
+    x = np.einsum("nij,nj->ni", s_inv, d)  # S^-1 d
+    sa = np.einsum("nij,ncjk->ncik", s_inv, comps)  # S^-1 A_c
+    quadratic = np.einsum("ni,ncij,nj->nc", x, comps, x)
+    score = 0.5 * weight @ (quadratic - np.einsum("ncii->nc", sa))
+    information = 0.5 * np.einsum("n,ncij,nbji->cb", weight, sa, sa)
+    information += 1e-9 * np.trace(information) * np.eye(len(v))
+    return np.linalg.solve(information, score)
+
+
+def pair_components(
+    xy: np.ndarray,
+    cov: np.ndarray,
+    drift: np.ndarray,
+    seen_xy: np.ndarray,
+    seen_cov: np.ndarray,
+    seen_drift: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Pairs of sightings of n objects by one robot: d (n, 2) = p_now - p_then and the
+    components (n, 3, 2, 2) of its covariance (module docstring). `xy`, `cov`: the
+    detections now in the robot's dead-reckoning frame, configured; `drift`: its chain's
+    drift parts now (3, 3, 3); `seen_*`: the same when it saw each object before."""
+    jac = se2.point_jacobian(xy)  # (n, 2, 3)
+    parts = drift[None, :2] - seen_drift[:, :2]  # (n, 2, 3, 3) translation, heading
+    comps = np.empty((len(xy), len(TERMS), 2, 2))
+    comps[:, 0] = cov + seen_cov
+    comps[:, 1:] = np.einsum("nij,npjk,nlk->npil", jac, parts, jac)
+    return xy - seen_xy, comps

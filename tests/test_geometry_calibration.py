@@ -1,0 +1,118 @@
+"""Noise that calibrates itself (geometry/calibration.py, issue 11): the variance factors
+from pairs of sightings, robust to wrong pairs, bounded, and applied to odometry parts."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from agrislam.config import AgrislamConfig, CalibrationConfig
+from agrislam.geometry import se2
+from agrislam.geometry.calibration import (
+    NoiseCalibration,
+    NoiseScale,
+    odometry_parts,
+    pair_components,
+)
+from agrislam.pipeline import run_survey
+from agrislam.sim.arena import ArenaSimulator
+from agrislam.sim.config import ArenaConfig
+from agrislam.world import WorldModel
+
+Q = np.array([[4e-4, 1e-5, 2e-5], [1e-5, 1e-4, 0.0], [2e-5, 0.0, 9e-6]])
+
+
+def test_odometry_parts_sum_to_the_covariance_and_scale_as_its_sigmas():
+    parts = odometry_parts(Q)
+    np.testing.assert_allclose(parts.sum(axis=0), Q)
+    scale = NoiseScale(np.array([1.0, 4.0, 9.0]))  # sigmas x2 translation, x3 heading
+    s = np.diag([2.0, 2.0, 3.0])
+    np.testing.assert_allclose(scale.odometry(parts), s @ Q @ s)
+    # parts compose like the covariance they sum to (linear in the covariance)
+    d = np.array([0.5, 0.1, 0.2])
+    _, composed = se2.compose_increments(d, parts, d, parts)
+    _, whole = se2.compose_increments(d, Q, d, Q)
+    np.testing.assert_allclose(composed.sum(axis=0), whole, atol=1e-15)
+
+
+def synthetic_pairs(rng, n, sigma_factors, wrong=0.0):
+    """n pairs whose d is drawn from the model with the given true sigma factors, the
+    first `wrong` share replaced by far-off wrong pairs (another object 2-8 m away)."""
+    xy = rng.uniform(-5, 5, (n, 2))
+    cov = np.tile(np.diag([0.01, 0.0025]), (n, 1, 1))
+    drift = np.zeros((3, 3, 3))
+    seen_drift = np.zeros((n, 3, 3, 3))
+    steps = rng.integers(1, 40, n)[:, None, None]
+    seen_drift[:, 0] = -steps * np.diag([1e-4, 1e-4, 0.0])  # the chain came `steps` far
+    seen_drift[:, 1] = -steps * np.diag([0.0, 0.0, 4e-6])
+    d0, comps = pair_components(xy, cov, drift, xy, cov, seen_drift)
+    v = np.asarray(sigma_factors) ** 2
+    total = np.einsum("c,ncij->nij", v, comps)
+    d = np.stack([rng.multivariate_normal(np.zeros(2), c) for c in total])
+    k = int(wrong * n)
+    angle = rng.uniform(0, 2 * np.pi, k)
+    d[:k] = rng.uniform(2, 8, k)[:, None] * np.column_stack([np.cos(angle), np.sin(angle)])
+    assert np.allclose(d0, 0.0)
+    return d, comps
+
+
+def calibration(**settings) -> NoiseCalibration:
+    return NoiseCalibration(CalibrationConfig(min_pairs=200, update_every=10**9, **settings))
+
+
+@pytest.mark.parametrize("wrong", [0.0, 0.1])
+def test_the_estimate_finds_the_true_factors_despite_wrong_pairs(wrong):
+    rng = np.random.default_rng(3)
+    cal = calibration(sigma_bounds=(0.05, 30.0))
+    cal.add_pairs(*synthetic_pairs(rng, 3000, [0.7, 3.0, 3.0], wrong))
+    v = NoiseScale.configured().variance
+    for _ in range(4):  # each estimate moves a sigma by at most 2x
+        v = cal.estimate(v)
+    np.testing.assert_allclose(np.sqrt(v), [0.7, 3.0, 3.0], rtol=0.1)
+    assert cal.pairs_used == pytest.approx(3000 * (1 - wrong), rel=0.03)
+
+
+def test_by_default_noise_found_smaller_than_configured_is_not_used():
+    rng = np.random.default_rng(5)
+    cal = calibration()
+    cal.add_pairs(*synthetic_pairs(rng, 2000, [0.5, 2.0, 2.0]))
+    v = cal.estimate(cal.estimate(NoiseScale.configured().variance))
+    np.testing.assert_allclose(np.sqrt(v)[0], 1.0)  # a floor: the detection stays as logged
+    assert np.sqrt(v)[1] > 1.5
+
+
+def test_one_estimate_moves_a_sigma_by_at_most_a_factor_of_two():
+    rng = np.random.default_rng(6)
+    cal = calibration()
+    cal.add_pairs(*synthetic_pairs(rng, 2000, [1.0, 10.0, 10.0]))
+    v = cal.estimate(NoiseScale.configured().variance)
+    np.testing.assert_allclose(np.sqrt(v)[1:], 2.0)
+
+
+def test_the_estimate_is_renewed_every_so_many_pairs_and_reported():
+    rng = np.random.default_rng(7)
+    cal = NoiseCalibration(CalibrationConfig(min_pairs=200, update_every=250))
+    d, comps = synthetic_pairs(rng, 1000, [1.0, 2.0, 2.0])
+    for start in range(0, 1000, 100):
+        cal.add_pairs(d[start : start + 100], comps[start : start + 100])
+    report = cal.report()
+    assert report["updates"] == 3 and report["pairs_seen"] == 1000  # at 300, 600, 900
+    assert report["sigma_factors"]["heading"] == report["sigma_factors"]["translation"] > 1.5
+
+
+def test_a_disabled_calibration_keeps_the_configured_noise():
+    cal = NoiseCalibration(CalibrationConfig(enabled=False, min_pairs=10))
+    d, comps = synthetic_pairs(np.random.default_rng(8), 500, [1.0, 5.0, 5.0])
+    cal.add_pairs(d, comps)
+    np.testing.assert_array_equal(cal.scale.variance, 1.0)
+
+
+def test_the_arena_finds_its_under_reported_odometry_noise():
+    """The arena's odometry reports a heading sigma 4x too small (sim/config.py): after
+    90 s the run's own re-sightings have scaled the odometry up, and say so."""
+    arena = ArenaConfig.model_validate({"seed": 2, "driving": {"duration_s": 90.0}})
+    world = WorldModel(AgrislamConfig())
+    result = run_survey(list(ArenaSimulator(arena).records()), world)
+    noise = result.noise
+    assert noise is not None and noise["updates"] >= 1
+    assert 2.0 <= noise["sigma_factors"]["heading"] <= 8.0
