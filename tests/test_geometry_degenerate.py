@@ -75,3 +75,28 @@ def test_five_robots_sharing_landmarks_fold_their_windows_without_stopping():
     result = run_survey(list(ArenaSimulator(arena).records()), world)
     assert result.error is None and world.backend.rolls >= 3
     assert len(result.snapshot.objects.ids) >= 10
+
+
+def test_a_refine_that_gtsam_cannot_solve_is_skipped_and_the_map_kept(monkeypatch):
+    import agrislam.geometry.incremental as incremental
+
+    g = make_backend(SlamConfig(window=2, refine_turn_deg=0.0), RowsConfig())
+    g.add_robot("r", np.zeros(3), TIGHT)
+    for i, xy in enumerate([np.array([1.0, 0.5]), np.array([1.5, -0.5])]):
+        g.add_object(i, xy)
+        g.add_observation("r", i, RelativePosition(xy, detection_covariance(xy, 0.05, 0.01)))
+    for t in (1.0, 2.0, 3.0):
+        g.add_odometry("r", t, np.array([0.2, 0.0, 0.0]), ODOMETRY)
+        g.update()
+    before = g.object_positions(np.array([0, 1]))
+
+    def indeterminate(*args, **kwargs):
+        raise RuntimeError("Indeterminate linear system detected while working near variable 7")
+
+    monkeypatch.setattr(incremental, "solve", indeterminate)
+    g.refine()
+    assert any(why.startswith("refine skipped") for why in g.issues)
+    np.testing.assert_allclose(g.object_positions(np.array([0, 1])), before, atol=1e-9)
+    g.add_odometry("r", 4.0, np.array([0.2, 0.0, 0.0]), ODOMETRY)
+    g.update()  # and the back end goes on
+    assert g.trajectory("r")[1].shape == (5, 3)

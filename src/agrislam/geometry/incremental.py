@@ -418,15 +418,22 @@ class IncrementalBackend(BackendBase):
             for key in factor.keys:
                 if not initial.exists(key):
                     insert_value(initial, key, self._estimate(key))
-        solution = solve(graph, initial, self.slam)
-        self._isam = isam2(self.slam)
+        try:
+            solution = solve(graph, initial, self.slam)
+            fresh = isam2(self.slam)
+            if not self.window:
+                fresh.update(graph, solution)
+            else:
+                self._refold(solution, fresh)
+        except RuntimeError as err:  # degenerate: carry on from the incremental estimate
+            self.issues[f"refine skipped: {str(err).strip().splitlines()[0]}"] += 1
+            return
+        self._isam = fresh
         self._cov_cache.clear()
         if not self.window:
-            self._isam.update(graph, solution)
             self._slots.reset(Entry(f.keys, fid) for fid, f in self.graph.factors.items())
             return
         self._relocate(solution)
-        self._refold(solution)
 
     def _relocate(self, solution: gtsam.Values) -> None:
         """Every retired node's place relative to its keyframe, taken from `solution`."""
@@ -440,9 +447,9 @@ class IncrementalBackend(BackendBase):
             z[rows] = to_robot_frame(frames[rows][0], xy[rows])
         objects.relocate(z)
 
-    def _refold(self, solution: gtsam.Values) -> None:
-        """Live graph = keyframes and rows with the whole history marginalised onto them
-        at `solution`, plus the record's factors between them (kept nonlinear)."""
+    def _refold(self, solution: gtsam.Values, fresh: gtsam.ISAM2) -> None:
+        """Live graph (in `fresh`) = keyframes and rows with the whole history marginalised
+        onto them at `solution`, plus the record's factors between them (kept nonlinear)."""
         history, live = gtsam.NonlinearFactorGraph(), gtsam.NonlinearFactorGraph()
         fids: list[int | None] = []
         gone: set[int] = set()
@@ -462,7 +469,7 @@ class IncrementalBackend(BackendBase):
         _, remaining = history.linearize(solution).eliminatePartialMultifrontal(sorted(gone))
         folded = gtsam.LinearContainerFactor.ConvertLinearGraph(remaining, kept)
         live.push_back(folded)
-        self._isam.update(live, values)
+        fresh.update(live, values)  # may raise: nothing of this back end has changed yet
         fids.extend([None] * folded.size())
         self._slots.reset(Entry(tuple(live.at(n).keys()), fid) for n, fid in enumerate(fids))
         self._folded_heading = {
