@@ -11,6 +11,7 @@ from agrislam.geometry import se2
 from agrislam.geometry.calibration import (
     NoiseCalibration,
     NoiseScale,
+    nearest_other,
     odometry_parts,
     pair_components,
 )
@@ -116,3 +117,9 @@ def test_the_arena_finds_its_under_reported_odometry_noise():
     noise = result.noise
     assert noise is not None and noise["updates"] >= 1
     assert 2.0 <= noise["sigma_factors"]["heading"] <= 8.0
+
+
+def test_nearest_other_is_the_distance_to_the_nearest_object_but_that_one():
+    dist = np.array([[1.0, 3.0, 2.0], [5.0, 4.0, 6.0]])
+    np.testing.assert_array_equal(nearest_other(dist), [[2.0, 1.0, 1.0], [4.0, 5.0, 4.0]])
+    assert np.isinf(nearest_other(np.array([[1.0]]))).all()  # nothing else around

@@ -30,7 +30,7 @@ from agrislam.association import (
 from agrislam.config import AgrislamConfig, AssociationConfig, FieldSchema
 from agrislam.geometry import se2
 from agrislam.geometry.backend import make_backend
-from agrislam.geometry.calibration import NoiseCalibration
+from agrislam.geometry.calibration import NoiseCalibration, nearest_other
 from agrislam.geometry.depth_bias import DepthBiasEstimator
 from agrislam.geometry.drift import since_seen
 from agrislam.geometry.noise import SensorModel
@@ -359,9 +359,8 @@ class WorldModel:
         then = self.objects.last_seen(around, robot)
         k = then.known
         eligible = object_ids[:, None] == around[k][None, :]
-        self.noise.observe(
-            *frame, (then.xy[k], then.cov[k], then.drift[k]), eligible, other_than(dist)[:, k]
-        )
+        spacing = nearest_other(dist)[:, k]
+        self.noise.observe(*frame, (then.xy[k], then.cov[k], then.drift[k]), eligible, spacing)
 
     def _create_objects(
         self, object_ids: np.ndarray, placed: PlacedDetections, t: float
@@ -517,11 +516,3 @@ class WorldModel:
         if self.schema is None:
             return []
         return list(self.schema.discrete if kind == "discrete" else self.schema.continuous)
-
-
-def other_than(dist: np.ndarray) -> np.ndarray:
-    """(m, k) for each row's column the smallest entry of the row in the other columns."""
-    order = np.sort(dist, axis=1)
-    second = order[:, 1] if dist.shape[1] > 1 else np.full(len(dist), np.inf)
-    nearest = dist == order[:, :1]
-    return np.where(nearest, second[:, None], order[:, :1])

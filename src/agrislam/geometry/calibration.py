@@ -210,3 +210,12 @@ def pair_components(
     comps[:, 0] = cov + seen_cov
     comps[:, 1:] = np.einsum("nij,npjk,nlk->npil", jac, parts, jac)
     return xy - seen_xy, comps
+
+
+def nearest_other(dist: np.ndarray) -> np.ndarray:
+    """(m, k): for each entry of the distances `dist` (m, k) from m points to k objects,
+    the distance from that point to its nearest object other than that one."""
+    order = np.sort(dist, axis=1)
+    second = order[:, 1] if dist.shape[1] > 1 else np.full(len(dist), np.inf)
+    nearest = dist == order[:, :1]
+    return np.where(nearest, second[:, None], order[:, :1])
