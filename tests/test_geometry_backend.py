@@ -392,3 +392,21 @@ def test_a_retired_objects_covariance_is_its_keyframes_carried_over_plus_its_own
         np.testing.assert_allclose(cov, jac @ cov_k @ jac.T + rot @ anchor.cov @ rot.T, rtol=1e-6)
         checked += 1
     assert checked >= 20
+
+
+@pytest.mark.parametrize("window", [0, 3])
+def test_a_new_poses_covariance_carried_through_its_odometry_is_isam2s(window):
+    """current_pose_covariance of a pose just added is the previous pose's carried through
+    the increment (no iSAM2 update of its own): the same as iSAM2's after the update."""
+    g = make_backend(SlamConfig(window=window, refine_turn_deg=0.0), RowsConfig())
+    g.add_robot("r", np.array([1.0, 2.0, 0.4]), np.array([0.1, 0.05, 0.02]))
+    xy = np.array([2.0, 0.5])
+    g.add_object(0, xy)
+    g.add_observation("r", 0, RelativePosition(xy, detection_covariance(xy, 0.05, 0.01)))
+    g.update()
+    for t in range(1, 6):
+        g.add_odometry("r", float(t), np.array([0.3, 0.05, 0.1 * t]), np.diag([1e-3, 4e-4, 2e-4]))
+        carried = g.current_pose_covariance("r")
+        g.update()
+        solved = g._isam.marginalCovariance(g.graph.robot("r").keys[-1])
+        np.testing.assert_allclose(carried, solved, rtol=1e-9, atol=1e-12)

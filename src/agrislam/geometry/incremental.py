@@ -34,6 +34,7 @@ import numpy as np
 from agrislam.config import RowsConfig, SlamConfig
 from agrislam.geometry.base import BackendBase, pose_array
 from agrislam.geometry.batch import insert_value, solve, value_array
+from agrislam.geometry.drift import adjoint
 from agrislam.geometry.graph import POSE, ROW, SurveyGraph, key_index, key_kind, make_factor
 from agrislam.geometry.isam_state import (
     Anchored,
@@ -168,6 +169,7 @@ class IncrementalBackend(BackendBase):
         self._step = 0
         self._window_start = 0
         self._folded_heading: dict[int, float] = {}  # keyframe -> heading when folded onto
+        self._increments: dict[str, tuple[np.ndarray, np.ndarray]] = {}  # latest odometry
         self.rolls = 0
         self.refines = 0
 
@@ -478,11 +480,24 @@ class IncrementalBackend(BackendBase):
         self.refines += 1
 
     # ---------------------------------------------------------------- queries
+    def add_odometry(self, robot: str, t: float, delta: np.ndarray, cov: np.ndarray) -> None:
+        super().add_odometry(robot, t, delta, cov)
+        self._increments[robot] = (np.asarray(delta, dtype=float), np.asarray(cov, dtype=float))
+
     def current_pose_covariance(self, robot: str) -> np.ndarray:
-        """(3, 3) marginal covariance of the robot's latest pose (x, y, theta)."""
+        """(3, 3) marginal covariance of the robot's latest pose (x, y, theta, in its own
+        frame as GTSAM's). A pose only just added, whose one factor is its odometry, has
+        the previous pose's carried through the increment: Ad(d^-1) S Ad(d^-1)^T + Q,
+        which spares an iSAM2 update before the frame's own."""
+        keys = self.graph.robot(robot).keys
+        pending = self._pending.guess
+        if len(keys) > 1 and pending(keys[-1]) is not None and pending(keys[-2]) is None:
+            delta, cov = self._increments[robot]
+            carry = adjoint(between(delta, np.zeros(3)))
+            return carry @ self._marginal_covariance(keys[-2]) @ carry.T + cov
         if self._pending.has_nodes():
             self._solve_pending()
-        return self._marginal_covariance(self.graph.robot(robot).keys[-1])
+        return self._marginal_covariance(keys[-1])
 
     def _marginal_covariance(self, key: int) -> np.ndarray:
         """A node's marginal covariance, read again from iSAM2 (a Bayes-tree traversal)
