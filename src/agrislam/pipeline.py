@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 
-from agrislam.evaluation import evaluate, truth_trajectories, write_metrics
+from agrislam.evaluation import association_counts, evaluate, truth_trajectories, write_metrics
 from agrislam.perception.label_map import LabelMap
 from agrislam.records import Detections, Meta, Record, TruthObject, TruthPose
 from agrislam.sinks.atomic import atomic_path
@@ -39,19 +39,35 @@ class Truth:
     objects: list[TruthObject] = field(default_factory=list)
     poses: list[TruthPose] = field(default_factory=list)
     min_plant_distance: float | None = None
-    detection_ids: list[str | None] = field(default_factory=list)  # truth_id per detection
+    truth_ids: dict[str, int] = field(default_factory=dict)  # truth_id -> its number
+    detection_truths: list[np.ndarray] = field(default_factory=list)  # per frame, -1 clutter
     detection_objects: list[np.ndarray] = field(default_factory=list)  # object per detection
 
     @property
     def present(self) -> bool:
-        return bool(self.objects or self.poses or any(self.detection_ids))
+        return bool(self.objects or self.poses or self.truth_ids)
+
+    def saw(self, truth_ids: Iterable[str | None], object_ids: np.ndarray) -> None:
+        """A frame's detections: the truth id of each (None: clutter) and its object; kept
+        as two small int arrays a frame, the ids numbered once each."""
+        numbers = self.truth_ids
+        truths = [-1 if t is None else numbers.setdefault(t, len(numbers)) for t in truth_ids]
+        self.detection_truths.append(np.array(truths, dtype=np.int32))
+        self.detection_objects.append(np.asarray(object_ids, dtype=np.int32))
+
+    def association_arrays(self, world: WorldModel) -> tuple[np.ndarray, np.ndarray]:
+        """(truth number, -1 clutter) and final object id of every detection."""
+        if not self.detection_objects:
+            return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
+        truths = np.concatenate(self.detection_truths).astype(np.int64)
+        return truths, world.resolve(np.concatenate(self.detection_objects).astype(np.int64))
 
     def associations(self, world: WorldModel) -> list[tuple[str | None, int]]:
         """(truth_id, final object id) of every detection (truth_id None for clutter)."""
-        if not self.detection_objects:
-            return []
-        objects = world.resolve(np.concatenate(self.detection_objects))
-        return list(zip(self.detection_ids, objects.tolist(), strict=True))
+        names = list(self.truth_ids)
+        truths, objects = self.association_arrays(world)
+        ids = [names[t] if t >= 0 else None for t in truths.tolist()]
+        return list(zip(ids, objects.tolist(), strict=True))
 
 
 @dataclass(slots=True)
@@ -178,8 +194,7 @@ def _feed(record: Record, world: WorldModel, truth: Truth) -> int:
             truth.min_plant_distance = record.field.min_plant_distance
         report = world.process(record)
         if report is not None and isinstance(record, Detections):
-            truth.detection_ids.extend(d.truth_id for d in record.objects)
-            truth.detection_objects.append(report.object_ids)
+            truth.saw((d.truth_id for d in record.objects), report.object_ids)
             return 1
     return 0
 
@@ -205,9 +220,10 @@ def _score(result: RunResult, world: WorldModel, truth: Truth) -> dict[str, Any]
             result.snapshot,
             truth.objects,
             truth.poses,
-            associations=truth.associations(world),
             min_plant_distance=truth.min_plant_distance,
         )
+        if truth.detection_objects:
+            metrics["association"] = association_counts(*truth.association_arrays(world))
     except Exception as err:
         result.issues[f"no scores: evaluation failed ({describe(err)})"] = 1
         return None
