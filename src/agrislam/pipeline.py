@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 
 from agrislam.evaluation import association_counts, evaluate, truth_trajectories, write_metrics
+from agrislam.growing import GrowingRows
 from agrislam.perception.label_map import LabelMap
 from agrislam.records import Detections, Meta, Record, TruthObject, TruthPose
 from agrislam.sinks.atomic import atomic_path
@@ -37,7 +38,7 @@ class Truth:
     """What the source knows of the real field; the world model never sees it."""
 
     objects: list[TruthObject] = field(default_factory=list)
-    poses: list[TruthPose] = field(default_factory=list)
+    tracks: dict[str, tuple[GrowingRows, GrowingRows]] = field(default_factory=dict)
     min_plant_distance: float | None = None
     truth_ids: dict[str, int] = field(default_factory=dict)  # truth_id -> its number
     detection_truths: list[np.ndarray] = field(default_factory=list)  # per frame, -1 clutter
@@ -45,7 +46,20 @@ class Truth:
 
     @property
     def present(self) -> bool:
-        return bool(self.objects or self.poses or self.truth_ids)
+        return bool(self.objects or self.tracks or self.truth_ids)
+
+    def add_pose(self, record: TruthPose) -> None:
+        """A true pose, kept in its robot's arrays (times, poses) in the order it came."""
+        times, poses = self.tracks.setdefault(record.robot, (GrowingRows(), GrowingRows((3,))))
+        times.append(record.t)
+        poses.append(record.pose)
+
+    @property
+    def poses(self) -> Iterator[TruthPose]:
+        """The true poses, robot by robot, each robot's in the order they came."""
+        for robot, (times, poses) in self.tracks.items():
+            for t, pose in zip(times.array.tolist(), poses.array, strict=True):
+                yield TruthPose(t=t, robot=robot, pose=pose.copy())
 
     def saw(self, truth_ids: Iterable[str | None], object_ids: np.ndarray) -> None:
         """A frame's detections: the truth id of each (None: clutter) and its object; kept
@@ -188,7 +202,7 @@ def _feed(record: Record, world: WorldModel, truth: Truth) -> int:
     if isinstance(record, TruthObject):
         truth.objects.append(record)
     elif isinstance(record, TruthPose):
-        truth.poses.append(record)
+        truth.add_pose(record)
     else:
         if isinstance(record, Meta) and record.field is not None:
             truth.min_plant_distance = record.field.min_plant_distance
