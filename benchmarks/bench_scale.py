@@ -50,7 +50,7 @@ def child(plants: int, seed: int) -> dict[str, Any]:
     with tempfile.TemporaryDirectory() as out:
         result = run_survey(source, WorldModel(config), out)
     steps = result.snapshot.step_seconds() if result.snapshot is not None else np.zeros(0)
-    times = [t.times for t in result.snapshot.trajectories.values()]
+    times = [t.t for t in result.snapshot.trajectories.values()]
     survey = max((float(t[-1] - t[0]) for t in times if len(t)), default=0.0)
     return {
         "plants": plants,
