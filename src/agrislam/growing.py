@@ -19,12 +19,23 @@ class GrowingRows:
         return self._n
 
     def append(self, row: ArrayLike) -> None:
-        if self._n == len(self._data):
-            grown = np.zeros((2 * self._n, *self._data.shape[1:]), dtype=self._data.dtype)
-            grown[: self._n] = self._data
-            self._data = grown
+        self._reserve(self._n + 1)
         self._data[self._n] = row
         self._n += 1
+
+    def extend(self, rows: ArrayLike) -> None:
+        """Append each of `rows` ((k, *row))."""
+        rows = np.asarray(rows, dtype=self._data.dtype)
+        self._reserve(self._n + len(rows))
+        self._data[self._n : self._n + len(rows)] = rows
+        self._n += len(rows)
+
+    def _reserve(self, n: int) -> None:
+        if n > len(self._data):
+            size = max(n, 2 * len(self._data))
+            grown = np.zeros((size, *self._data.shape[1:]), dtype=self._data.dtype)
+            grown[: self._n] = self._data[: self._n]
+            self._data = grown
 
     @property
     def array(self) -> np.ndarray:

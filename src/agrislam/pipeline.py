@@ -41,8 +41,8 @@ class Truth:
     tracks: dict[str, tuple[GrowingRows, GrowingRows]] = field(default_factory=dict)
     min_plant_distance: float | None = None
     truth_ids: dict[str, int] = field(default_factory=dict)  # truth_id -> its number
-    detection_truths: list[np.ndarray] = field(default_factory=list)  # per frame, -1 clutter
-    detection_objects: list[np.ndarray] = field(default_factory=list)  # object per detection
+    detection_truths: GrowingRows = field(default_factory=lambda: GrowingRows(dtype=np.int32))
+    detection_objects: GrowingRows = field(default_factory=lambda: GrowingRows(dtype=np.int32))
 
     @property
     def present(self) -> bool:
@@ -63,18 +63,16 @@ class Truth:
 
     def saw(self, truth_ids: Iterable[str | None], object_ids: np.ndarray) -> None:
         """A frame's detections: the truth id of each (None: clutter) and its object; kept
-        as two small int arrays a frame, the ids numbered once each."""
+        in two int arrays, the ids numbered once each."""
         numbers = self.truth_ids
         truths = [-1 if t is None else numbers.setdefault(t, len(numbers)) for t in truth_ids]
-        self.detection_truths.append(np.array(truths, dtype=np.int32))
-        self.detection_objects.append(np.asarray(object_ids, dtype=np.int32))
+        self.detection_truths.extend(truths)
+        self.detection_objects.extend(object_ids)
 
     def association_arrays(self, world: WorldModel) -> tuple[np.ndarray, np.ndarray]:
         """(truth number, -1 clutter) and final object id of every detection."""
-        if not self.detection_objects:
-            return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
-        truths = np.concatenate(self.detection_truths).astype(np.int64)
-        return truths, world.resolve(np.concatenate(self.detection_objects).astype(np.int64))
+        truths = self.detection_truths.array.astype(np.int64)
+        return truths, world.resolve(self.detection_objects.array.astype(np.int64))
 
     def associations(self, world: WorldModel) -> list[tuple[str | None, int]]:
         """(truth_id, final object id) of every detection (truth_id None for clutter)."""
@@ -236,7 +234,7 @@ def _score(result: RunResult, world: WorldModel, truth: Truth) -> dict[str, Any]
             truth.poses,
             min_plant_distance=truth.min_plant_distance,
         )
-        if truth.detection_objects:
+        if len(truth.detection_objects):
             metrics["association"] = association_counts(*truth.association_arrays(world))
     except Exception as err:
         result.issues[f"no scores: evaluation failed ({describe(err)})"] = 1
