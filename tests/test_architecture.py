@@ -15,6 +15,7 @@ MAX_LINES = 600
 # the core, lowest first: each part may import only the parts before it
 CORE = [
     "config",
+    "growing",
     "records",
     "semantics",
     "snapshot",

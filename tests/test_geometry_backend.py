@@ -410,3 +410,25 @@ def test_a_new_poses_covariance_carried_through_its_odometry_is_isam2s(window):
         g.update()
         solved = g._isam.marginalCovariance(g.graph.robot("r").keys[-1])
         np.testing.assert_allclose(carried, solved, rtol=1e-9, atol=1e-12)
+
+
+def test_a_graph_above_the_batch_limit_refines_its_folded_keyframe_graph(small_survey):
+    """refine() past `refine_max_factors`: no batch over the whole record (its memory grows
+    with the field), the keyframe graph is relinearised instead; the map stays close to
+    the batch solution and the back end keeps mapping."""
+    b, survey = small_survey
+    maps = {}
+    for name, slam in {
+        "batch": SlamConfig(backend="batch"),
+        "bounded": SlamConfig(window=20, refine_max_factors=10),
+    }.items():
+        g = make_backend(slam, RowsConfig())
+        _, ids, complete, _ = b.drive(g, survey, None, float("inf"))
+        assert complete
+        if name == "bounded":
+            live = g.live_size()
+            g.refine()
+            assert g.refines >= 1 and g.live_size() <= live
+        maps[name] = b.positions(g, ids)
+    gap = [np.linalg.norm(maps["bounded"][k] - maps["batch"][k]) for k in maps["batch"]]
+    assert np.sqrt(np.mean(np.square(gap))) < 0.05

@@ -123,7 +123,7 @@ def test_size_follows_growth():
 
 def test_truth_objects_carry_schema_values():
     field, _ = _field()
-    truth = field.truth_objects()
+    truth = list(field.truth_objects())
     assert len(truth) == 400 and truth[0].id == "p0000"
     assert set(truth[5].attributes) == {"colour", "size"}
     assert truth[5].attributes["size"] in ("small", "medium", "big")

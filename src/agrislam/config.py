@@ -486,6 +486,13 @@ class SlamConfig(_Strict):
         description="with keyframes: refine() by itself once a keyframe has turned this much "
         "since history was folded onto it (a large loop closure); 0 = never",
     )
+    refine_max_factors: int = Field(
+        250_000,  # about 1.7 KB of GTSAM memory a factor in a batch: ~0.4 GB at most
+        ge=0,
+        description="with keyframes: refine() solves the whole recorded graph in one batch "
+        "only up to this many factors (a batch costs memory in proportion); beyond, it "
+        "relinearises the keyframe graph the history is folded onto (bounded memory)",
+    )
 
 
 class RowsConfig(_Strict):

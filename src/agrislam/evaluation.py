@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import json
 import math
-from collections import Counter
 from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -146,26 +145,43 @@ def association_scores(associations: Sequence[tuple[str | None, int]]) -> dict[s
     """Purity (the share of each object's detections that are of its main plant) and
     completeness (the share of each plant's detections that went to its main object),
     weighted by detections; clutter (no truth id) is counted apart."""
-    pairs = [(str(t), int(o)) for t, o in associations if t]
-    counts = Counter(pairs)
-    by_object: dict[int, Counter[str]] = {}
-    by_truth: dict[str, Counter[int]] = {}
-    for (t, o), n in counts.items():
-        by_object.setdefault(o, Counter())[t] = n
-        by_truth.setdefault(t, Counter())[o] = n
-    total = len(pairs)
+    numbers: dict[str, int] = {}
+    truths = [numbers.setdefault(str(t), len(numbers)) if t else -1 for t, _ in associations]
+    objects = [int(o) for _, o in associations]
+    return association_counts(np.array(truths, dtype=np.int64), np.array(objects, dtype=np.int64))
+
+
+def association_counts(truths: np.ndarray, objects: np.ndarray) -> dict[str, Any]:
+    """`association_scores` of each detection's truth number (-1: clutter) and object, as
+    arrays: a whole field's detections without a Python object each."""
+    n_detections = len(truths)
+    keep = truths >= 0
+    pairs, counts = np.unique(
+        np.column_stack([truths[keep], objects[keep]]), axis=0, return_counts=True
+    )
+    total = int(counts.sum())
     if total == 0:
-        return {"n_detections": len(associations), "n_clutter": len(associations)}
+        return {"n_detections": n_detections, "n_clutter": n_detections}
+    per_truth = _group_max_and_size(pairs[:, 0], counts)
+    per_object = _group_max_and_size(pairs[:, 1], counts)
     return {
-        "n_detections": len(associations),
-        "n_clutter": len(associations) - total,
-        "purity": sum(max(c.values()) for c in by_object.values()) / total,
-        "completeness": sum(max(c.values()) for c in by_truth.values()) / total,
-        "truths": len(by_truth),
-        "truths_split": sum(len(c) > 1 for c in by_truth.values()),
-        "objects_mixed": sum(len(c) > 1 for c in by_object.values()),
-        "truths_one_object_fraction": sum(len(c) == 1 for c in by_truth.values()) / len(by_truth),
+        "n_detections": n_detections,
+        "n_clutter": n_detections - total,
+        "purity": float(per_object[0].sum() / total),
+        "completeness": float(per_truth[0].sum() / total),
+        "truths": len(per_truth[1]),
+        "truths_split": int((per_truth[1] > 1).sum()),
+        "objects_mixed": int((per_object[1] > 1).sum()),
+        "truths_one_object_fraction": float((per_truth[1] == 1).mean()),
     }
+
+
+def _group_max_and_size(group: np.ndarray, counts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per distinct value of `group`: the largest of its `counts` and how many it has."""
+    _, inverse, size = np.unique(group, return_inverse=True, return_counts=True)
+    largest = np.zeros(len(size), dtype=counts.dtype)
+    np.maximum.at(largest, inverse, counts)
+    return largest, size
 
 
 def _attribute_scores(

@@ -15,7 +15,8 @@ from typing import Any
 
 import numpy as np
 
-from agrislam.evaluation import evaluate, truth_trajectories, write_metrics
+from agrislam.evaluation import association_counts, evaluate, truth_trajectories, write_metrics
+from agrislam.growing import GrowingRows
 from agrislam.perception.label_map import LabelMap
 from agrislam.records import Detections, Meta, Record, TruthObject, TruthPose
 from agrislam.sinks.atomic import atomic_path
@@ -37,21 +38,48 @@ class Truth:
     """What the source knows of the real field; the world model never sees it."""
 
     objects: list[TruthObject] = field(default_factory=list)
-    poses: list[TruthPose] = field(default_factory=list)
+    tracks: dict[str, tuple[GrowingRows, GrowingRows]] = field(default_factory=dict)
     min_plant_distance: float | None = None
-    detection_ids: list[str | None] = field(default_factory=list)  # truth_id per detection
-    detection_objects: list[np.ndarray] = field(default_factory=list)  # object per detection
+    truth_ids: dict[str, int] = field(default_factory=dict)  # truth_id -> its number
+    detection_truths: GrowingRows = field(default_factory=lambda: GrowingRows(dtype=np.int32))
+    detection_objects: GrowingRows = field(default_factory=lambda: GrowingRows(dtype=np.int32))
 
     @property
     def present(self) -> bool:
-        return bool(self.objects or self.poses or any(self.detection_ids))
+        return bool(self.objects or self.tracks or self.truth_ids)
+
+    def add_pose(self, record: TruthPose) -> None:
+        """A true pose, kept in its robot's arrays (times, poses) in the order it came."""
+        times, poses = self.tracks.setdefault(record.robot, (GrowingRows(), GrowingRows((3,))))
+        times.append(record.t)
+        poses.append(record.pose)
+
+    @property
+    def poses(self) -> Iterator[TruthPose]:
+        """The true poses, robot by robot, each robot's in the order they came."""
+        for robot, (times, poses) in self.tracks.items():
+            for t, pose in zip(times.array.tolist(), poses.array, strict=True):
+                yield TruthPose(t=t, robot=robot, pose=pose.copy())
+
+    def saw(self, truth_ids: Iterable[str | None], object_ids: np.ndarray) -> None:
+        """A frame's detections: the truth id of each (None: clutter) and its object; kept
+        in two int arrays, the ids numbered once each."""
+        numbers = self.truth_ids
+        truths = [-1 if t is None else numbers.setdefault(t, len(numbers)) for t in truth_ids]
+        self.detection_truths.extend(truths)
+        self.detection_objects.extend(object_ids)
+
+    def association_arrays(self, world: WorldModel) -> tuple[np.ndarray, np.ndarray]:
+        """(truth number, -1 clutter) and final object id of every detection."""
+        truths = self.detection_truths.array.astype(np.int64)
+        return truths, world.resolve(self.detection_objects.array.astype(np.int64))
 
     def associations(self, world: WorldModel) -> list[tuple[str | None, int]]:
         """(truth_id, final object id) of every detection (truth_id None for clutter)."""
-        if not self.detection_objects:
-            return []
-        objects = world.resolve(np.concatenate(self.detection_objects))
-        return list(zip(self.detection_ids, objects.tolist(), strict=True))
+        names = list(self.truth_ids)
+        truths, objects = self.association_arrays(world)
+        ids = [names[t] if t >= 0 else None for t in truths.tolist()]
+        return list(zip(ids, objects.tolist(), strict=True))
 
 
 @dataclass(slots=True)
@@ -174,14 +202,13 @@ def _feed(record: Record, world: WorldModel, truth: Truth) -> int:
     if isinstance(record, TruthObject):
         truth.objects.append(record)
     elif isinstance(record, TruthPose):
-        truth.poses.append(record)
+        truth.add_pose(record)
     else:
         if isinstance(record, Meta) and record.field is not None:
             truth.min_plant_distance = record.field.min_plant_distance
         report = world.process(record)
         if report is not None and isinstance(record, Detections):
-            truth.detection_ids.extend(d.truth_id for d in record.objects)
-            truth.detection_objects.append(report.object_ids)
+            truth.saw((d.truth_id for d in record.objects), report.object_ids)
             return 1
     return 0
 
@@ -207,9 +234,10 @@ def _score(result: RunResult, world: WorldModel, truth: Truth) -> dict[str, Any]
             result.snapshot,
             truth.objects,
             truth.poses,
-            associations=truth.associations(world),
             min_plant_distance=truth.min_plant_distance,
         )
+        if len(truth.detection_objects):
+            metrics["association"] = association_counts(*truth.association_arrays(world))
     except Exception as err:
         result.issues[f"no scores: evaluation failed ({describe(err)})"] = 1
         return None

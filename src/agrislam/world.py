@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from collections import Counter, defaultdict
+from collections import Counter
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -36,6 +36,7 @@ from agrislam.geometry.drift import since_seen
 from agrislam.geometry.noise import SensorModel
 from agrislam.geometry.odometry import OdometryChain
 from agrislam.geometry.rows import RowTracker
+from agrislam.growing import GrowingRows
 from agrislam.maintenance import MaintenanceResult, merge_pairs, prune_due
 from agrislam.objects import ObjectTable
 from agrislam.records import Detection, Detections, FieldPrior, Meta, Odometry, Record
@@ -75,7 +76,13 @@ class StepReport:
 class _Timer:
     def __init__(self) -> None:
         self.step: dict[str, float] = {}
-        self.history: dict[str, list[float]] = defaultdict(list)
+        self._history = GrowingRows((len(STAGES),))  # one row a step: no float object each
+
+    @property
+    def history(self) -> dict[str, np.ndarray]:
+        """Each stage's time of every step so far (s)."""
+        steps = self._history.array
+        return {stage: steps[:, n].copy() for n, stage in enumerate(STAGES)} if len(steps) else {}
 
     @contextmanager
     def __call__(self, stage: str) -> Iterator[None]:
@@ -85,8 +92,7 @@ class _Timer:
 
     def close_step(self) -> dict[str, float]:
         done, self.step = self.step, {}
-        for stage in STAGES:
-            self.history[stage].append(done.get(stage, 0.0))
+        self._history.append([done.get(stage, 0.0) for stage in STAGES])
         return done
 
 

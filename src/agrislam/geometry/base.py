@@ -238,7 +238,7 @@ class BackendBase:
             self.graph.remove_factor(fid)
             self._remove(fid)
         del self.graph.rows[row]
-        self.graph.factors_of.pop(key, None)
+        self.graph.forget_node(key)
         self._forget(key, None)
 
     def row_points(self, rows: np.ndarray) -> np.ndarray:

@@ -11,6 +11,7 @@ import gtsam
 import numpy as np
 
 from agrislam.config import SlamConfig
+from agrislam.geometry.factor_store import Factor, FactorStore
 from agrislam.geometry.noise import gaussian, one_direction, robust, row_direction, row_normal
 
 # key layout: one symbol letter per node kind; robot r's pose i is x(r * POSES_PER_ROBOT + i)
@@ -52,14 +53,6 @@ def robot_index_of(pose: int) -> int:
 
 
 @dataclass(slots=True)
-class Factor:
-    kind: str
-    keys: tuple[int, ...]
-    value: np.ndarray
-    cov: np.ndarray | float
-
-
-@dataclass(slots=True)
 class RobotChain:
     index: int
     times: list[float] = field(default_factory=list)
@@ -79,10 +72,8 @@ class SurveyGraph:
         self.robots: dict[str, RobotChain] = {}
         self.objects: dict[int, np.ndarray] = {}  # id -> initial map-frame position
         self.rows: dict[int, RowNode] = {}
-        self.factors: dict[int, Factor] = {}
-        self.factors_of: dict[int, set[int]] = {}  # node key -> ids of its factors
+        self.factors = FactorStore()  # factor id -> Factor, as rows of arrays
         self.row_of: dict[int, int] = {}  # object id -> row id of its row constraint
-        self._next_factor = 0
 
     # ---------------------------------------------------------------- nodes
     def robot(self, robot: str) -> RobotChain:
@@ -130,31 +121,29 @@ class SurveyGraph:
 
     # -------------------------------------------------------------- factors
     def add_factor(self, factor: Factor) -> int:
-        fid = self._next_factor
-        self._next_factor += 1
-        self.factors[fid] = factor
-        for key in factor.keys:
-            self.factors_of.setdefault(key, set()).add(fid)
+        fid = self.factors.append(factor)
         if factor.kind == ROW_MEMBER:
             self.row_of[key_index(factor.keys[1])] = key_index(factor.keys[0])
         return fid
 
     def remove_factor(self, fid: int) -> Factor:
         factor = self.factors.pop(fid)
-        for key in factor.keys:
-            self.factors_of[key].discard(fid)
         if factor.kind == ROW_MEMBER:
             self.row_of.pop(key_index(factor.keys[1]), None)
         return factor
 
     def factor_ids(self, key: int) -> list[int]:
-        return sorted(self.factors_of.get(key, ()))
+        return self.factors.ids_of(key)
+
+    def forget_node(self, key: int) -> None:
+        """Node `key` is gone from the graph (its factors already removed)."""
+        self.factors.forget(key)
 
     def row_member_factor(self, object_id: int) -> int | None:
         if object_id not in self.row_of:
             return None
         okey = object_key(object_id)
-        return next(f for f in self.factors_of[okey] if self.factors[f].kind == ROW_MEMBER)
+        return next(f for f in self.factor_ids(okey) if self.factors.kind(f) == ROW_MEMBER)
 
     def remove_object(self, object_id: int) -> list[int]:
         """Drop an object and its factors; returns the removed factor ids."""
@@ -163,7 +152,7 @@ class SurveyGraph:
         for fid in fids:
             self.remove_factor(fid)
         del self.objects[object_id]
-        self.factors_of.pop(okey, None)
+        self.forget_node(okey)
         return fids
 
     @staticmethod

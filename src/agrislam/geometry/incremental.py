@@ -414,6 +414,9 @@ class IncrementalBackend(BackendBase):
         self._solve_pending()
         if self.window:
             self._fold()  # the current window retires too: only keyframes and rows live
+            if len(self.graph.factors) > self.slam.refine_max_factors:
+                self._refine_folded()
+                return
         graph, initial = gtsam.NonlinearFactorGraph(), gtsam.Values()
         for factor in self.graph.factors.values():
             graph.push_back(make_factor(factor, self.slam))
@@ -436,6 +439,15 @@ class IncrementalBackend(BackendBase):
             self._slots.reset(Entry(f.keys, fid) for fid, f in self.graph.factors.items())
             return
         self._relocate(solution)
+
+    def _refine_folded(self) -> None:
+        """A graph too large for one batch: Gauss-Newton on the keyframe graph the history
+        is folded onto (bounded by the keyframes, not the plants); the headings the folded
+        factors were linearised at are taken as they are now."""
+        self._converge()
+        self._cov_cache.clear()
+        self._folded_heading = {k: self._estimate(k)[2] for k in self._folded_heading}
+        self.refines += 1
 
     def _relocate(self, solution: gtsam.Values) -> None:
         """Every retired node's place relative to its keyframe, taken from `solution`."""

@@ -13,6 +13,7 @@ import numpy as np
 from agrislam.geometry import se2
 from agrislam.geometry.calibration import odometry_parts
 from agrislam.geometry.drift import adjoint
+from agrislam.growing import GrowingRows
 
 
 class OdometryChain:
@@ -29,8 +30,8 @@ class OdometryChain:
         self.drift = np.zeros((3, 3, 3))
         self._pending: tuple[np.ndarray, np.ndarray] | None = None  # composed delta, parts
         self._odom_pose: np.ndarray | None = None  # last odometry-frame pose, if given
-        self._track_t: list[float] = []
-        self._track: list[np.ndarray] = []
+        self._track_t = GrowingRows()
+        self._track = GrowingRows((3,))
 
     def start(self, pose: np.ndarray, t: float) -> None:
         """The chain begins at map-frame `pose` at time t."""
@@ -68,7 +69,7 @@ class OdometryChain:
 
     def track(self) -> tuple[np.ndarray, np.ndarray]:
         """(m,) times and (m, 3) dead-reckoning poses so far."""
-        return np.asarray(self._track_t), np.asarray(self._track).reshape(-1, 3)
+        return self._track_t.array.copy(), self._track.array.copy()
 
     def _record(self, t: float) -> None:
         self._track_t.append(t)

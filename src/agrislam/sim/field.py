@@ -3,6 +3,7 @@ weeds off the rows, gaps and doubled plants, and their growth between survey day
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -75,13 +76,12 @@ class Field:
                 out[name] = float(self.continuous[name][i])
         return out
 
-    def truth_objects(self) -> list[TruthObject]:
-        return [
-            TruthObject(
+    def truth_objects(self) -> Iterator[TruthObject]:
+        """The plants' truth records, one at a time (a field of 100,000 is not held twice)."""
+        for i in range(len(self)):
+            yield TruthObject(
                 id=str(self.ids[i]), xy=self.xy[i].copy(), attributes=self.truth_attributes(i)
             )
-            for i in range(len(self))
-        ]
 
     def grown(self, days: float) -> Field:
         """The field `days` later: every length follows dx/dt = alpha (l_max - x) (App. B),

@@ -1,0 +1,160 @@
+"""Whole fields in bounded memory (issue 14): max RSS, memory per plant, step times and
+wall time against survey time, from 400 to 10,000 plants (100,000 with --huge).
+
+Each survey runs in a child process of its own (the simulator as the source, the whole
+pipeline with every output written to a temporary folder), which reports its own peak
+resident set size (`getrusage`), so one survey's memory never counts for another. A child
+with a 40-plant survey gives the interpreter's and libraries' baseline; the slope per plant
+(between the two largest sizes) extrapolates the largest to 1,000,000 plants. Survey time
+is the survey's own (its time stamps) and its frames at 1 frame per second.
+
+    python benchmarks/bench_scale.py [--sizes 400 10000] [--huge] [--seed 2]
+                                     [--baseline-src ../other-checkout/src]
+
+`--baseline-src` runs the same surveys with another checkout's code (the previous state)
+beside this one's, in the same run.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import resource
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from rich.console import Console
+from rich.table import Table
+
+ROOT = Path(__file__).resolve().parents[1]
+BASELINE_PLANTS = 40
+TARGET_PLANTS = 1_000_000
+console = Console(width=170)
+
+
+def child(plants: int, seed: int) -> dict[str, Any]:
+    """One survey, run here: the figures the parent prints (in a child process)."""
+    from agrislam.config import AgrislamConfig
+    from agrislam.pipeline import run_survey
+    from agrislam.sources import open_source
+    from agrislam.sources.simulated import simulation_uri
+    from agrislam.world import WorldModel
+
+    config = AgrislamConfig()
+    source = open_source(simulation_uri(plants=plants, seed=seed), config)
+    with tempfile.TemporaryDirectory() as out:
+        result = run_survey(source, WorldModel(config), out)
+    steps = result.snapshot.step_seconds() if result.snapshot is not None else np.zeros(0)
+    times = [t.t for t in result.snapshot.trajectories.values()]
+    survey = max((float(t[-1] - t[0]) for t in times if len(t)), default=0.0)
+    return {
+        "plants": plants,
+        "mapped": len(result.snapshot.objects) if result.snapshot is not None else 0,
+        "frames": result.n_frames,
+        "wall": result.wall_seconds,
+        "survey": survey,
+        "steps_ms": (steps * 1e3).tolist(),
+        "max_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+    }
+
+
+def measure(plants: int, seed: int, src: Path) -> dict[str, Any]:
+    """The survey in a child process with `src` on its path; its figures."""
+    env = {**os.environ, "PYTHONPATH": str(src)}
+    command = [sys.executable, __file__, "--child", str(plants), "--seed", str(seed)]
+    start = time.perf_counter()
+    done = subprocess.run(command, env=env, capture_output=True, text=True, check=False)
+    if done.returncode != 0:
+        raise RuntimeError(f"{plants} plants with {src}: {done.stderr.strip()[-2000:]}")
+    figures = json.loads(done.stdout.strip().splitlines()[-1])
+    figures["process_seconds"] = time.perf_counter() - start
+    return figures
+
+
+def slope_mb_per_plant(rows: list[dict[str, Any]], base_mb: float) -> float:
+    """MB per plant between the two largest sizes (the baseline and the smallest size
+    when only one was measured): what each further plant costs."""
+    points = [(BASELINE_PLANTS, base_mb)] + [(r["plants"], r["max_rss_mb"]) for r in rows]
+    (n0, m0), (n1, m1) = points[-2:]
+    return (m1 - m0) / (n1 - n0)
+
+
+def table(name: str, rows: list[dict[str, Any]], base_mb: float) -> Table:
+    out = Table(title=f"{name}: baseline ({BASELINE_PLANTS} plants) {base_mb:.0f} MB max RSS")
+    for column in (
+        "plants",
+        "frames",
+        "max RSS MB",
+        "KB / plant above base",
+        "step median / p95 / max ms",
+        "steps > 100 ms",
+        "wall s",
+        "survey s",
+        "survey / wall",
+        "frames at 1 fps / wall",
+    ):
+        out.add_column(column, justify="right")
+    for r in rows:
+        ms = np.asarray(r["steps_ms"])
+        per_plant = (r["max_rss_mb"] - base_mb) * 1024 / r["plants"]
+        out.add_row(
+            f"{r['plants']:,}",
+            f"{r['frames']:,}",
+            f"{r['max_rss_mb']:.0f}",
+            f"{per_plant:.1f}",
+            f"{np.median(ms):.1f} / {np.percentile(ms, 95):.1f} / {ms.max():.0f}",
+            str(int((ms > 100).sum())),
+            f"{r['wall']:.0f}",
+            f"{r['survey']:.0f}",
+            f"{r['survey'] / max(r['wall'], 1e-9):.0f}x",
+            f"{r['frames'] / max(r['wall'], 1e-9):.0f}x",
+        )
+    return out
+
+
+def report(name: str, src: Path, sizes: list[int], seed: int) -> None:
+    base = measure(BASELINE_PLANTS, seed, src)["max_rss_mb"]
+    rows = []
+    for plants in sizes:
+        rows.append(measure(plants, seed, src))
+        console.print(f"{name}: {plants:,} plants done in {rows[-1]['process_seconds']:.0f} s")
+    console.print(table(name, rows, base))
+    slope = slope_mb_per_plant(rows, base)
+    largest = rows[-1]
+    million = (largest["max_rss_mb"] + slope * (TARGET_PLANTS - largest["plants"])) / 1024
+    ms = [np.asarray(r["steps_ms"]) for r in (rows[0], largest)]
+    ratio = [f(ms[1]) / f(ms[0]) for f in (np.median, lambda m: np.percentile(m, 95))]
+    console.print(
+        f"{name}: slope {slope * 1024:.2f} KB per plant between the largest sizes (target <= 4); "
+        f"{TARGET_PLANTS:,} plants -> about {million:.1f} GB max RSS; "
+        f"step median / p95 at {largest['plants']:,} vs {rows[0]['plants']:,} plants: "
+        f"{ratio[0]:.2f}x / {ratio[1]:.2f}x (target <= 1.5x); "
+        f"max step {max(m.max() for m in ms):.0f} ms (target <= 100)"
+    )
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--sizes", type=int, nargs="+", default=[400, 10_000])
+    parser.add_argument("--huge", action="store_true", help="also 100,000 plants (hours)")
+    parser.add_argument("--seed", type=int, default=2)
+    parser.add_argument("--baseline-src", type=Path, help="another checkout's src folder")
+    parser.add_argument("--child", type=int, help=argparse.SUPPRESS)
+    args = parser.parse_args()
+    if args.child is not None:
+        print(json.dumps(child(args.child, args.seed)))
+        return
+    sizes = sorted(set(args.sizes + ([100_000] if args.huge else [])))
+    report("this checkout", ROOT / "src", sizes, args.seed)
+    if args.baseline_src is not None:
+        report(f"baseline {args.baseline_src}", args.baseline_src.resolve(), sizes, args.seed)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,55 @@
+"""The survey graph's factors as rows of arrays (geometry/factor_store.py): what goes in
+comes out bit for bit, ids are stable, and the factors of a node are found after removals
+(merges and prunes) as they were with a set per node."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from agrislam.geometry.factor_store import Factor, FactorStore
+
+
+def odometry(a: int, b: int, dx: float) -> Factor:
+    return Factor("odometry", (a, b), np.array([dx, 0.1, -0.2]), np.diag([1e-3, 2e-3, 1e-4]))
+
+
+def test_factors_come_back_exactly_as_stored():
+    store = FactorStore(capacity=1)  # grows
+    cov = np.array([[0.04, 0.01], [0.01, 0.09]])
+    factors = [
+        Factor("prior_pose", (7,), np.array([1.0, 2.0, 0.3]), np.diag([1e-6, 1e-6, 1e-8])),
+        odometry(7, 8, 0.5),
+        Factor("detection", (8, 2**62 + 5), np.array([0.25, 1.5]), cov),
+        Factor("row_member", (2**61, 2**62 + 5), np.array([0.7]), 0.05),
+    ]
+    ids = [store.append(f) for f in factors]
+    assert ids == [0, 1, 2, 3] and len(store) == 4 and list(store) == ids
+    for fid, factor in zip(ids, factors, strict=True):
+        back = store[fid]
+        assert back.kind == factor.kind and back.keys == factor.keys
+        assert np.array_equal(back.value, factor.value) and back.value.shape == factor.value.shape
+        if isinstance(factor.cov, float):
+            assert back.cov == factor.cov
+        else:
+            assert np.array_equal(back.cov, factor.cov)
+    assert store.kind(3) == "row_member"
+    assert store.nbytes() < 4 * 200  # a few hundred bytes a factor, not a Python object each
+
+
+def test_the_factors_of_a_node_after_removals():
+    store = FactorStore()
+    for n in range(10):
+        store.append(odometry(100, 200 + n, float(n)))
+    for fid in (0, 4, 9):
+        del store[fid]
+    assert store.ids_of(100) == [1, 2, 3, 5, 6, 7, 8]
+    assert store.ids_of(204) == [] and store.ids_of(205) == [5]
+    assert 4 not in store and len(store) == 7
+    with pytest.raises(KeyError):
+        store[4]
+    new = store.append(odometry(100, 204, 1.0))
+    assert store.ids_of(100)[-1] == new and store.ids_of(204) == [new]
+    assert store.pop(new).keys == (100, 204) and store.ids_of(204) == []
+    with pytest.raises(KeyError, match="in order"):
+        store[50] = odometry(1, 2, 0.0)
