@@ -465,6 +465,32 @@ class MaintenanceConfig(_Strict):
     prune_grace_s: float = Field(20.0, ge=0.0, description="s unseen before pruning")
 
 
+class GnssConfig(_Strict):
+    """GNSS fixes as factors on the robot pose (geometry/gnss.py)."""
+
+    enabled: bool = True
+    # sigma floor per fix type (m, horizontal): a receiver's covariance is trusted no lower
+    fix_sigma: dict[str, float] = Field(
+        default_factory=lambda: {"rtk_fixed": 0.01, "rtk_float": 0.2, "dgps": 0.5, "single": 1.5},
+        description="m, the least horizontal sigma each fix type is taken with; a type not "
+        "named here (none) is never used",
+    )
+    robust_kernel: Literal["huber", "cauchy", "none"] = "cauchy"
+    robust_k: float = Field(2.0, gt=0.0, description="kernel width in standard deviations")
+    gate_chi2: float = Field(
+        18.42,
+        ge=0.0,
+        description="a fix farther from the predicted antenna than this squared Mahalanobis "
+        "distance (2 dof, 18.42 = p 1e-4) is rejected; 0 = no gate",
+    )
+    gate_reacquire: int = Field(
+        10, ge=0, description="after this many fixes in a row beyond the gate, take the next"
+    )
+    antenna: tuple[float, float, float] = Field(
+        (0.0, 0.0, 0.0), description="m, antenna in the robot frame when a fix does not say"
+    )
+
+
 class AgrislamConfig(_Strict):
     """Root configuration of a run; every value has a default (`agrislam config --defaults`)."""
 
@@ -479,6 +505,7 @@ class AgrislamConfig(_Strict):
     slam: SlamConfig = Field(default_factory=SlamConfig)
     rows: RowsConfig = Field(default_factory=RowsConfig)
     maintenance: MaintenanceConfig = Field(default_factory=MaintenanceConfig)
+    gnss: GnssConfig = Field(default_factory=GnssConfig)
     label_map: dict[str, dict[str, str]] = Field(
         default_factory=dict,
         description="combined detector label -> attribute values, e.g. "
