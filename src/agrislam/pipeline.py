@@ -70,6 +70,7 @@ class RunResult:
     records: dict[str, int] = field(default_factory=dict)
     output_errors: dict[str, str] = field(default_factory=dict)
     source_report: SourceReport | None = None
+    gnss: dict[str, int] = field(default_factory=dict)  # fixes used and rejected (issue 13)
 
     @property
     def usable(self) -> bool:
@@ -157,6 +158,7 @@ def _run(
     issues.update(world.issues)
     result = RunResult(None, None, wall, n_frames, [], dict(issues), error, dict(counts))
     result.source_report = source.report if source is not None else None
+    result.gnss = world.gnss.summary()
     result.snapshot = _snapshot(world, result)
     if result.snapshot is not None and truth.present:
         result.metrics = _score(result, world, truth)
@@ -228,6 +230,7 @@ def _summary(result: RunResult) -> dict[str, Any]:
         },
         "input": report.as_dict() if report is not None else None,
         "skipped": skipped_table(report),
+        **({"gnss": result.gnss} if result.gnss else {}),
     }
 
 
