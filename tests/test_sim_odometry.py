@@ -4,8 +4,8 @@ import pytest
 from agrislam.geometry.se2 import compose
 from agrislam.sim.config import OdometryNoise, SimConfig
 from agrislam.sim.field import make_field
-from agrislam.sim.odometry import increments, integrate, noisy_odometry, step_sigma
 from agrislam.sim.gnss_config import DistanceDrift
+from agrislam.sim.odometry import increments, integrate, noisy_odometry, step_sigma
 from agrislam.sim.path import lawnmower
 
 NO_DRIFT = DistanceDrift(bias_length=0.0, scale_sigma=0.0)  # the bias before issue 13

@@ -491,6 +491,19 @@ class GnssConfig(_Strict):
     )
 
 
+class OutputsConfig(_Strict):
+    """Map files for the farm (issue 13); the weeds prescription of ISOXML and shapefile."""
+
+    formats: list[Literal["geojson", "gpkg", "isoxml", "shapefile"]] | None = Field(
+        None, description="georeferenced map files; None: geojson and gpkg when anchored"
+    )
+    weed_attribute: str = Field("type", description="the attribute that tells weeds")
+    weed_value: str = Field("weed", description="its value for a weed")
+    weed_min_p: float = Field(0.5, ge=0.0, le=1.0, description="least p to treat a plant")
+    rate_l_ha: float = Field(200.0, gt=0.0, description="spray rate on a weed, l/ha")
+    cell_m: float = Field(0.25, gt=0.0, le=100.0, description="ISOXML grid cell size, m")
+
+
 class AgrislamConfig(_Strict):
     """Root configuration of a run; every value has a default (`agrislam config --defaults`)."""
 
@@ -506,6 +519,7 @@ class AgrislamConfig(_Strict):
     rows: RowsConfig = Field(default_factory=RowsConfig)
     maintenance: MaintenanceConfig = Field(default_factory=MaintenanceConfig)
     gnss: GnssConfig = Field(default_factory=GnssConfig)
+    outputs: OutputsConfig = Field(default_factory=OutputsConfig)
     label_map: dict[str, dict[str, str]] = Field(
         default_factory=dict,
         description="combined detector label -> attribute values, e.g. "

@@ -46,9 +46,8 @@ class MapFrame:
 
     def to_map(self, lat: np.ndarray, lon: np.ndarray, h: np.ndarray) -> np.ndarray:
         """(k, 3) map x, y and height above the anchor's tangent plane, m."""
-        east, north, up = self._enu.transform(
-            np.asarray(lon, float), np.asarray(lat, float), np.asarray(h, float)
-        )
+        lat, lon, h = np.broadcast_arrays(*(np.asarray(v, dtype=float) for v in (lat, lon, h)))
+        east, north, up = self._enu.transform(lon, lat, h)
         xy = np.column_stack([np.ravel(east), np.ravel(north)]) @ self._rot.T
         return np.column_stack([xy, np.ravel(up)])
 
