@@ -83,21 +83,29 @@ def every_nth(t: np.ndarray, rate_hz: float) -> np.ndarray:
     return np.unique(idx)
 
 
-def with_fixes(records: Iterable[Record], fixes: list[GnssFix]) -> Iterator[Record]:
-    """The records with the fixes (sorted by t) in time order: a fix after the records
-    before its time and the odometry at it, before a frame at its time."""
-    fixes = sorted(fixes, key=lambda f: f.t)
+def with_fixes(
+    records: Iterable[Record], fixes: list[GnssFix], robots: list[str]
+) -> Iterator[Record]:
+    """The records with the fixes in the order a bag's reader gives them: by time, then
+    robot (in `robots` order), a fix after its robot's odometry and before its frame."""
+    rank = {name: k for k, name in enumerate(robots)}
+    fixes = sorted(fixes, key=lambda f: (f.t, rank[f.robot]))
     k = 0
     for rec in records:
         t = getattr(rec, "t", None)
         if t is not None:
-            while k < len(fixes) and (
-                fixes[k].t < t or (fixes[k].t == t and isinstance(rec, Detections))
-            ):
+            while k < len(fixes) and _before(fixes[k], rec, t, rank):
                 yield fixes[k]
                 k += 1
         yield rec
     yield from fixes[k:]
+
+
+def _before(fix: GnssFix, rec: Record, t: float, rank: dict[str, int]) -> bool:
+    if fix.t != t:
+        return fix.t < t
+    mine, theirs = rank[fix.robot], rank.get(getattr(rec, "robot", ""), -1)
+    return theirs > mine or (theirs == mine and isinstance(rec, Detections))
 
 
 def survey_anchor(anchor: Anchor | None) -> Anchor:

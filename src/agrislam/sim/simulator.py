@@ -179,7 +179,7 @@ class Simulator:
             sv, rng = self.survey(day, k, name), self._rng(_GNSS, day, k)
             at = every_nth(sv.t_odom, gnss.rate_hz)
             fixes += robot_fixes(name, sv.t_odom[at], sv.poses_odom[at], frame, gnss, rng)
-        yield from with_fixes(records, fixes)
+        yield from with_fixes(records, fixes, names)
 
     def _odometry(self, sv: RobotSurvey, i: int, pose: np.ndarray) -> Odometry:
         """The first record of a robot marks where its timeline starts: zero motion, with the

@@ -1,0 +1,166 @@
+"""Georeferenced maps (issue 13's targets): simulated surveys scored WITHOUT alignment.
+
+For each seed and scenario, the same field and odometry: RTK fixed most of the time with
+some float; the same with 30 % of the survey in outages of minutes; the same with 2 %
+multipath outliers of metres; and without GNSS (the baseline, also scored after a rigid
+alignment, the figures before issue 13). Prints plants within 0.1 m of the truth, plant and
+trajectory RMS, the fixes used and rejected, and the mean step time against the run
+without GNSS. Targets (10,000 plants): RTK >= 98 % within 0.1 m, plant RMS <= 0.03 m,
+trajectory RMS <= 0.03 m; outages >= 95 % within 0.1 m; multipath no more than 10 % worse
+than RTK; step time with GNSS <= 1.1 x without.
+
+    nice python benchmarks/bench_gnss.py [--plants 10000] [--seeds 1 2 3]
+"""
+
+from __future__ import annotations
+
+import argparse
+from typing import Any
+
+import numpy as np
+from rich.console import Console
+from rich.table import Table
+
+from agrislam.config import AgrislamConfig
+from agrislam.evaluation import evaluate
+from agrislam.pipeline import run_survey
+from agrislam.records import GnssFix, TruthObject, TruthPose
+from agrislam.sim.config import SimConfig
+from agrislam.sim.gnss_config import GnssSimConfig
+from agrislam.sim.simulator import Simulator
+from agrislam.world import WorldModel
+
+SCENARIOS: dict[str, dict[str, Any] | None] = {
+    "RTK fixed + float": {},
+    "30 % outage": {"outage_fraction": 0.3},
+    "2 % multipath": {"multipath_fraction": 0.02},
+    "no GNSS": None,
+}
+WITHIN = 0.1  # m
+console = Console(width=180)
+
+
+def simulate(seed: int, plants: int, gnss: dict[str, Any] | None) -> list:
+    cfg = SimConfig(seed=seed)
+    cfg.field.n_plants = plants
+    cfg.gnss = None if gnss is None else GnssSimConfig(**gnss)
+    return list(Simulator(cfg).records())
+
+
+def score(records: list, result: Any, align: bool) -> dict[str, float]:
+    truth_objects = [r for r in records if isinstance(r, TruthObject)]
+    truth_poses = [r for r in records if isinstance(r, TruthPose)]
+    full = evaluate(result.snapshot, truth_objects, truth_poses, align=align)
+    near = evaluate(result.snapshot, truth_objects, truth_poses, radius=WITHIN, align=align)
+    return {
+        "within": near["objects"]["mapped_fraction"],
+        "plant_rms": full["objects"]["position_rms"],
+        "traj_rms": full["trajectory"]["optimised"]["rms_position"],
+        "dr_rms": full["trajectory"]["dead_reckoning"]["rms_position"],
+        "mapped": full["objects"]["mapped_fraction"],
+    }
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--plants", type=int, default=10_000)
+    parser.add_argument("--seeds", type=int, nargs="+", default=[1, 2, 3])
+    args = parser.parse_args()
+    table = Table(title=f"{args.plants}-plant surveys, scored without alignment")
+    for column in (
+        "scenario",
+        "seed",
+        f"within {WITHIN} m",
+        "plant RMS (m)",
+        "traj RMS (m)",
+        "DR RMS (m)",
+        "mapped",
+        "fixes used / rejected",
+        "step ms mean",
+        "vs no GNSS",
+        "wall s",
+    ):
+        table.add_column(column)
+    summary: dict[str, list[dict[str, float]]] = {name: [] for name in SCENARIOS}
+    for seed in args.seeds:
+        rows, base_ms = [], None
+        for name, gnss in reversed(SCENARIOS.items()):  # no GNSS first: the step baseline
+            records = simulate(seed, args.plants, gnss)
+            result = run_survey(records, WorldModel(AgrislamConfig()))
+            s = score(records, result, align=False)
+            ms = float(np.mean(result.snapshot.step_seconds()) * 1e3)
+            base_ms = ms if gnss is None else base_ms
+            s["step_ratio"] = ms / base_ms
+            counts = result.gnss
+            rejected = sum(v for k, v in counts.items() if k.startswith("rejected"))
+            fixes = sum(isinstance(r, GnssFix) for r in records)
+            used = f"{counts.get('used', 0)} / {rejected} of {fixes}" if fixes else "-"
+            label = name
+            if gnss is None:
+                aligned = score(records, result, align=True)
+                s |= {f"aligned_{k}": v for k, v in aligned.items()}
+                label += (
+                    f" (aligned: {aligned['within']:.1%} within, plants "
+                    f"{aligned['plant_rms']:.3f} m, traj {aligned['traj_rms']:.3f} m)"
+                )
+            summary[name].append(s)
+            rows.append(
+                [
+                    label,
+                    str(seed),
+                    f"{s['within']:.1%}",
+                    f"{s['plant_rms']:.3f}",
+                    f"{s['traj_rms']:.3f}",
+                    f"{s['dr_rms']:.2f}",
+                    f"{s['mapped']:.1%}",
+                    used,
+                    f"{ms:.1f}",
+                    f"{s['step_ratio']:.2f}",
+                    f"{result.wall_seconds:.0f}",
+                ]
+            )
+        for row in reversed(rows):
+            table.add_row(*row)
+    console.print(table)
+    verdicts(summary)
+
+
+def verdicts(summary: dict[str, list[dict[str, float]]]) -> None:
+    """Each target against the worst seed."""
+    rtk, outage, multipath = (
+        summary["RTK fixed + float"],
+        summary["30 % outage"],
+        summary["2 % multipath"],
+    )
+
+    def worst(rows: list[dict[str, float]], key: str, low: bool) -> float:
+        values = [r[key] for r in rows]
+        return min(values) if low else max(values)
+
+    checks = [
+        ("RTK: >= 98 % within 0.1 m", worst(rtk, "within", True), lambda v: v >= 0.98),
+        ("RTK: plant RMS <= 0.03 m", worst(rtk, "plant_rms", False), lambda v: v <= 0.03),
+        ("RTK: trajectory RMS <= 0.03 m", worst(rtk, "traj_rms", False), lambda v: v <= 0.03),
+        ("outage: >= 95 % within 0.1 m", worst(outage, "within", True), lambda v: v >= 0.95),
+        (
+            "multipath: within no more than 10 % below RTK",
+            min(m["within"] / r["within"] for m, r in zip(multipath, rtk, strict=True)),
+            lambda v: v >= 0.9,
+        ),
+        (
+            "multipath: plant RMS no more than 10 % above RTK",
+            max(m["plant_rms"] / r["plant_rms"] for m, r in zip(multipath, rtk, strict=True)),
+            lambda v: v <= 1.1,
+        ),
+        (
+            "step time with GNSS <= 1.1 x without (mean over seeds)",
+            float(np.mean([r["step_ratio"] for r in rtk + outage + multipath])),
+            lambda v: v <= 1.1,
+        ),
+    ]
+    for text, value, ok in checks:
+        console.print(f"{'PASS' if ok(value) else 'FAIL'}  {text}: {value:.3f}")
+
+
+if __name__ == "__main__":
+    main()
