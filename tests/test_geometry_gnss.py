@@ -138,3 +138,20 @@ def test_first_good_fix_anchors_a_survey_without_anchor() -> None:
     fixed = GnssFix(1.0, "r1", 51.0, 5.0, 10.0, "rtk_fixed")
     assert gnss.receive(fixed, None, np.zeros(3)) == Anchor(51.0, 5.0, 10.0, 0.0)
     np.testing.assert_allclose(gnss.pending["r1"][0].z, [0.0, 0.0], atol=1e-6)
+
+
+def test_a_graph_with_gnss_fixes_round_trips_through_g2o(tmp_path) -> None:
+    from agrislam.geometry.g2o import read_g2o, write_g2o
+
+    be = make_backend(SlamConfig(backend="batch"), RowsConfig())
+    be.add_robot("r1", np.zeros(3), np.array([1.0, 1.0, 0.1]), 0.0)
+    be.add_odometry("r1", 1.0, np.array([1.0, 0.0, 0.0]), ODOM_COV)
+    value = np.array([1.2, 0.1, 0.3, 0.05, 2.0, 2.0])
+    be.add_gnss("r1", value, np.array([[4e-4, 1e-4], [1e-4, 9e-4]]))
+    be.update()
+    write_g2o(be, tmp_path / "g.g2o")
+    back = read_g2o(tmp_path / "g.g2o").graph
+    (fix,) = [f for f in back.factors.values() if f.kind == "gnss"]
+    np.testing.assert_allclose(fix.value, value)
+    np.testing.assert_allclose(fix.cov, [[4e-4, 1e-4], [1e-4, 9e-4]], rtol=1e-9)
+    assert fix.keys == (back.robots["r1"].keys[1],)
