@@ -11,6 +11,20 @@ from agrislam.sim.path import lawnmower
 NO_DRIFT = DistanceDrift(bias_length=0.0, scale_sigma=0.0)  # the bias before issue 13
 
 
+def bias_only(drift: DistanceDrift) -> OdometryNoise:
+    """Odometry whose only error is a yaw-rate bias of 1e-3 rad/s (and `drift`)."""
+    return OdometryNoise(
+        sigma_x_per_m=0,
+        sigma_y_per_m=0,
+        sigma_theta_per_m=0,
+        sigma_theta_per_rad=0,
+        sigma_floor=(0, 0, 0),
+        heading_bias=1e-3,
+        heading_bias_walk=0.0,
+        drift=drift,
+    )
+
+
 def test_increments_and_integration_are_inverse():
     poses = np.array([[1.0, 2.0, 0.3], [1.5, 2.4, 0.9], [1.2, 3.0, 2.5], [0.0, 3.1, -3.0]])
     d = increments(poses)
@@ -45,16 +59,7 @@ def test_noise_matches_the_reported_covariance_without_bias():
 
 
 def test_heading_bias_turns_the_dead_reckoning_steadily():
-    noise = OdometryNoise(
-        sigma_x_per_m=0,
-        sigma_y_per_m=0,
-        sigma_theta_per_m=0,
-        sigma_theta_per_rad=0,
-        sigma_floor=(0, 0, 0),
-        heading_bias=1e-3,
-        heading_bias_walk=0.0,
-        drift=NO_DRIFT,
-    )
+    noise = bias_only(NO_DRIFT)
     t = np.arange(101) * 1.0
     poses = np.column_stack([0.4 * np.arange(101), np.zeros(101), np.zeros(101)])
     track = noisy_odometry(poses, t, noise, np.random.default_rng(0))
@@ -83,16 +88,7 @@ def test_the_heading_bias_relaxes_over_distance_and_distances_scale():
     """Issue 13: the yaw-rate bias starts at its calibrated size and relaxes over
     drift.bias_length towards a smaller random one; distances have a scale error."""
     drift = DistanceDrift(bias_length=100.0, bias_spread=0.0, scale_sigma=0.01)
-    noise = OdometryNoise(
-        sigma_x_per_m=0,
-        sigma_y_per_m=0,
-        sigma_theta_per_m=0,
-        sigma_theta_per_rad=0,
-        sigma_floor=(0, 0, 0),
-        heading_bias=1e-3,
-        heading_bias_walk=0.0,
-        drift=drift,
-    )
+    noise = bias_only(drift)
     n = 2001
     t = np.arange(n) * 1.0
     poses = np.column_stack([0.5 * np.arange(n), np.zeros(n), np.zeros(n)])
