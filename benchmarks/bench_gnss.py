@@ -116,7 +116,7 @@ def main() -> None:
                 )
             summary[name].append(s)
             rows.append(
-                [
+                row := [
                     label,
                     str(seed),
                     f"{s['within']:.1%}",
@@ -131,6 +131,7 @@ def main() -> None:
                     f"{result.wall_seconds:.0f}",
                 ]
             )
+            console.print("  ".join(row), soft_wrap=True)  # as each run ends
         for row in reversed(rows):
             table.add_row(*row)
     console.print(table)
