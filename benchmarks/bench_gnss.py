@@ -70,10 +70,13 @@ def main() -> None:
         "--scenarios", nargs="+", choices=["rtk", "outage", "multipath"], default=None,
         help="only these GNSS scenarios (the run without GNSS is always made)",
     )  # fmt: skip
+    parser.add_argument("--no-baseline", action="store_true", help="leave out the run without GNSS")
     args = parser.parse_args()
     keys = dict(zip(("rtk", "outage", "multipath"), SCENARIOS, strict=False))
     chosen = {keys[k] for k in args.scenarios} if args.scenarios else set(SCENARIOS)
-    scenarios = {k: v for k, v in SCENARIOS.items() if v is None or k in chosen}
+    scenarios = {
+        k: v for k, v in SCENARIOS.items() if k in chosen or (v is None and not args.no_baseline)
+    }
     table = Table(title=f"{args.plants}-plant surveys, scored without alignment")
     for column in (
         "scenario",
@@ -92,7 +95,7 @@ def main() -> None:
         table.add_column(column)
     summary: dict[str, list[dict[str, float]]] = {name: [] for name in SCENARIOS}
     for seed in args.seeds:
-        rows, base_ms = [], None
+        rows, base_ms = [], 0.0
         for name, gnss in reversed(scenarios.items()):  # no GNSS first: the step baseline
             records = simulate(seed, args.plants, gnss)
             result = run_survey(records, WorldModel(AgrislamConfig()))
@@ -101,7 +104,8 @@ def main() -> None:
             ms = float(np.median(steps) * 1e3)
             share = float(np.sum(result.snapshot.step_times["gnss"]) / np.sum(steps))
             base_ms = ms if gnss is None else base_ms
-            s["step_ratio"], s["gnss_share"] = ms / base_ms, share
+            s["step_ratio"] = ms / base_ms if base_ms else float("nan")
+            s["gnss_share"] = share
             counts = result.gnss
             rejected = sum(v for k, v in counts.items() if k.startswith("rejected"))
             fixes = sum(isinstance(r, GnssFix) for r in records)
