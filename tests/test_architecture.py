@@ -14,6 +14,7 @@ MAX_LINES = 600
 
 # the core, lowest first: each part may import only the parts before it
 CORE = [
+    "limits",
     "config",
     "growing",
     "records",
@@ -37,7 +38,7 @@ SIDEWAYS = {
 TOP = {"pipeline", "cli"}
 # modules of sinks/ that are no sink themselves: the tables and read-outs sinks share, and
 # how any of them writes a file (atomic)
-SINK_HELPERS = {"columns", "readouts", "scene", "log_lines", "atomic"}
+SINK_HELPERS = {"columns", "readouts", "scene", "log_lines", "atomic", "geo_layers"}
 
 
 def module_name(path: Path) -> str:

@@ -4,8 +4,25 @@ import pytest
 from agrislam.geometry.se2 import compose
 from agrislam.sim.config import OdometryNoise, SimConfig
 from agrislam.sim.field import make_field
+from agrislam.sim.gnss_config import DistanceDrift
 from agrislam.sim.odometry import increments, integrate, noisy_odometry, step_sigma
 from agrislam.sim.path import lawnmower
+
+NO_DRIFT = DistanceDrift(bias_length=0.0, scale_sigma=0.0)  # the bias before issue 13
+
+
+def bias_only(drift: DistanceDrift) -> OdometryNoise:
+    """Odometry whose only error is a yaw-rate bias of 1e-3 rad/s (and `drift`)."""
+    return OdometryNoise(
+        sigma_x_per_m=0,
+        sigma_y_per_m=0,
+        sigma_theta_per_m=0,
+        sigma_theta_per_rad=0,
+        sigma_floor=(0, 0, 0),
+        heading_bias=1e-3,
+        heading_bias_walk=0.0,
+        drift=drift,
+    )
 
 
 def test_increments_and_integration_are_inverse():
@@ -31,7 +48,7 @@ def test_step_sigma_by_hand():
 
 
 def test_noise_matches_the_reported_covariance_without_bias():
-    noise = OdometryNoise(heading_bias=0.0, heading_bias_walk=0.0)
+    noise = OdometryNoise(heading_bias=0.0, heading_bias_walk=0.0, drift=NO_DRIFT)
     t = np.arange(4001) * 0.5
     poses = np.column_stack([0.2 * np.arange(4001), np.zeros(4001), np.zeros(4001)])
     track = noisy_odometry(poses, t, noise, np.random.default_rng(3))
@@ -42,15 +59,7 @@ def test_noise_matches_the_reported_covariance_without_bias():
 
 
 def test_heading_bias_turns_the_dead_reckoning_steadily():
-    noise = OdometryNoise(
-        sigma_x_per_m=0,
-        sigma_y_per_m=0,
-        sigma_theta_per_m=0,
-        sigma_theta_per_rad=0,
-        sigma_floor=(0, 0, 0),
-        heading_bias=1e-3,
-        heading_bias_walk=0.0,
-    )
+    noise = bias_only(NO_DRIFT)
     t = np.arange(101) * 1.0
     poses = np.column_stack([0.4 * np.arange(101), np.zeros(101), np.zeros(101)])
     track = noisy_odometry(poses, t, noise, np.random.default_rng(0))
@@ -73,3 +82,22 @@ def test_default_survey_drifts_about_half_a_metre():
     assert 0.45 <= np.median(rms) <= 0.56
     assert np.percentile(rms, 90) < 0.8
     assert track.dead_reckoned[0] == pytest.approx(poses[0])
+
+
+def test_the_heading_bias_relaxes_over_distance_and_distances_scale():
+    """Issue 13: the yaw-rate bias starts at its calibrated size and relaxes over
+    drift.bias_length towards a smaller random one; distances have a scale error."""
+    drift = DistanceDrift(bias_length=100.0, bias_spread=0.0, scale_sigma=0.01)
+    noise = bias_only(drift)
+    n = 2001
+    t = np.arange(n) * 1.0
+    poses = np.column_stack([0.5 * np.arange(n), np.zeros(n), np.zeros(n)])
+    track = noisy_odometry(poses, t, noise, np.random.default_rng(0))
+    rate = np.abs(track.delta[:, 2])  # 0.5 m a step: e^-1 after 200 steps
+    assert rate[0] == pytest.approx(1e-3)
+    assert rate[200] == pytest.approx(1e-3 * np.exp(-1.0), rel=1e-9)
+    # the heading error is bounded: b0 L / v, not growing with the survey
+    assert abs(track.dead_reckoned[-1, 2]) == pytest.approx(1e-3 * 100 / 0.5, rel=0.01)
+    scale = track.delta[:, 0] / 0.5
+    np.testing.assert_allclose(scale, scale[0])
+    assert scale[0] != 1.0

@@ -69,6 +69,14 @@ ForceOption = Annotated[
     bool,
     typer.Option("--force", help="Replace the outputs of an earlier run in the --out folder."),
 ]
+FormatOption = Annotated[
+    list[str] | None,
+    typer.Option(
+        "--format",
+        help="Georeferenced map files, repeatable: geojson, gpkg, isoxml (weeds as an "
+        "ISOBUS prescription), shapefile (the same, zipped); default geojson and gpkg.",
+    ),
+]
 SOURCE_SECTIONS = ("bag", "sim")  # config file sections for the source, not the world model
 
 
@@ -85,12 +93,13 @@ def simulate(
     ] = None,
     config: ConfigOption = None,
     force: ForceOption = False,
+    formats: FormatOption = None,
 ) -> None:
     """Simulate a field survey and map it (default: the paper's 400-plant simulation)."""
     from agrislam.sources.simulated import simulation_uri
 
     uri = simulation_uri(plants=plants, seed=seed, preset=preset)
-    _survey(uri, config, out, record=record, force=force)
+    _survey(uri, config, out, record=record, force=force, formats=formats)
 
 
 @app.command()
@@ -109,9 +118,10 @@ def run(
         bool, typer.Option("--strict/--lenient", help="Stop at the first bad line, or skip it.")
     ] = False,
     force: ForceOption = False,
+    formats: FormatOption = None,
 ) -> None:
     """Map a recorded (or simulated) survey."""
-    _survey(log, config, out, strict=strict, force=force)
+    _survey(log, config, out, strict=strict, force=force, formats=formats)
 
 
 def _survey(
@@ -122,6 +132,7 @@ def _survey(
     strict: bool = False,
     record: Path | None = None,
     force: bool = False,
+    formats: list[str] | None = None,
 ) -> None:
     """Open the source, run the survey, print the source's report and the run's summary.
     The config file's ``bag:`` and ``sim:`` sections go to the source that reads them.
@@ -130,6 +141,8 @@ def _survey(
     with _user_errors():
         data = load_mapping(config) if config else {}
         sections = {name: data.pop(name, None) for name in SOURCE_SECTIONS}
+        if formats:
+            data.setdefault("outputs", {})["formats"] = formats
         cfg = _validated(AgrislamConfig, data, config)
         source = open_source(path_or_uri, cfg, strict=strict, **sections)
         with RunFolder(out, force=force) as folder:

@@ -15,6 +15,7 @@ from typing import Any
 
 import numpy as np
 
+from agrislam.config import OutputsConfig
 from agrislam.evaluation import association_counts, evaluate, truth_trajectories, write_metrics
 from agrislam.growing import GrowingRows
 from agrislam.perception.label_map import LabelMap
@@ -23,9 +24,12 @@ from agrislam.sinks.atomic import atomic_path
 from agrislam.sinks.csv import write_objects_csv, write_table, write_trajectory_csv
 from agrislam.sinks.foxglove import write_foxglove_mcap
 from agrislam.sinks.geojson import write_geojson
+from agrislam.sinks.geopackage import write_geopackage
+from agrislam.sinks.isoxml import write_isoxml
 from agrislam.sinks.report import write_report
 from agrislam.sinks.ros_map import write_map_mcap
 from agrislam.sinks.run_folder import RunFolder, RunFolderError
+from agrislam.sinks.shapefile import write_shapefile
 from agrislam.sinks.sqlite import save_map
 from agrislam.snapshot import MapSnapshot
 from agrislam.sources.base import Source, SourceError, SourceReport
@@ -99,6 +103,7 @@ class RunResult:
     output_errors: dict[str, str] = field(default_factory=dict)
     source_report: SourceReport | None = None
     noise: dict[str, Any] | None = None  # the noise scales the run estimated (calibration.py)
+    gnss: dict[str, int] = field(default_factory=dict)  # fixes used and rejected (issue 13)
 
     @property
     def usable(self) -> bool:
@@ -187,12 +192,18 @@ def _run(
     result = RunResult(None, None, wall, n_frames, [], dict(issues), error, dict(counts))
     result.source_report = source.report if source is not None else None
     result.noise = world.noise.report()
+    result.gnss = world.gnss.summary()
     result.snapshot = _snapshot(world, result)
     if result.snapshot is not None and truth.present:
         result.metrics = _score(result, world, truth)
     if folder is not None and (counts or error is None):
         result.outputs, result.output_errors = write_outputs(
-            result.snapshot, folder.path, result.metrics, truth, _summary(result)
+            result.snapshot,
+            folder.path,
+            result.metrics,
+            truth,
+            _summary(result),
+            world.config.outputs,
         )
     return result
 
@@ -259,6 +270,7 @@ def _summary(result: RunResult) -> dict[str, Any]:
         },
         "input": report.as_dict() if report is not None else None,
         "skipped": skipped_table(report),
+        **({"gnss": result.gnss} if result.gnss else {}),
     }
 
 
@@ -290,12 +302,39 @@ def _split_labels(
         yield record
 
 
+GEO_FILES = {
+    "geojson": "map.geojson",
+    "gpkg": "map.gpkg",
+    "isoxml": "taskdata.zip",
+    "shapefile": "prescription_shp.zip",
+}
+
+
+def geo_writers(
+    snapshot: MapSnapshot, cfg: OutputsConfig
+) -> list[tuple[str, Callable[[Path], Any]]]:
+    """The georeferenced files `outputs.formats` names (issue 13); by default GeoJSON and
+    GeoPackage when the map has an anchor. A named format the map cannot take (no anchor,
+    no weeds) is an output error of the run."""
+    if cfg.formats is None and snapshot.anchor is None:
+        return []
+    write = {
+        "geojson": lambda p: write_geojson(snapshot, p),
+        "gpkg": lambda p: write_geopackage(snapshot, p),
+        "isoxml": lambda p: write_isoxml(snapshot, p, cfg),
+        "shapefile": lambda p: write_shapefile(snapshot, p, cfg),
+    }
+    formats = cfg.formats if cfg.formats is not None else ["geojson", "gpkg"]
+    return [(GEO_FILES[f], write[f]) for f in dict.fromkeys(formats)]
+
+
 def write_outputs(
     snapshot: MapSnapshot | None,
     out_dir: Path,
     metrics: dict[str, Any] | None,
     truth: Truth,
     summary: dict[str, Any] | None = None,
+    outputs: OutputsConfig | None = None,
 ) -> tuple[list[Path], dict[str, str]]:
     """The files of DESIGN.md "Outputs of a run", each written atomically (a killed run
     leaves whole files only) and each on its own: one that fails is reported in the second
@@ -315,8 +354,7 @@ def write_outputs(
     if skipped is not None:
         writers.append(("skipped.csv", lambda p: write_table(skipped, p)))
     if snapshot is not None:
-        if snapshot.anchor is not None:
-            writers.append(("map.geojson", lambda p: write_geojson(snapshot, p)))
+        writers += geo_writers(snapshot, outputs or OutputsConfig())
         # MarkerArray + Path, for RViz and Foxglove
         writers.append(("map.mcap", lambda p: write_map_mcap(snapshot, p)))
         if importlib.util.find_spec("foxglove") is not None:  # the optional `foxglove` extra

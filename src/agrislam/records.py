@@ -131,6 +131,26 @@ class Detections:
     sensor: str | None = None
 
 
+# GNSS fix types, worst first (docs/log-format.md "gnss")
+FIX_TYPES = ("none", "single", "dgps", "rtk_float", "rtk_fixed")
+
+
+@dataclass(frozen=True, slots=True)
+class GnssFix:
+    """A GNSS fix of the robot's antenna: WGS84 latitude, longitude (deg) and ellipsoidal
+    altitude (m), the 3x3 covariance in metres (east, north, up), the fix type (FIX_TYPES)
+    and the antenna's position in the robot frame (None: the configured one)."""
+
+    t: float
+    robot: str
+    lat: float
+    lon: float
+    alt: float
+    fix: str
+    cov: np.ndarray | None = None
+    antenna: np.ndarray | None = None
+
+
 @dataclass(frozen=True, slots=True)
 class TruthPose:
     t: float
@@ -145,4 +165,4 @@ class TruthObject:
     attributes: dict[str, str | float] = field(default_factory=dict)
 
 
-Record: TypeAlias = Meta | Odometry | Detections | TruthPose | TruthObject
+Record: TypeAlias = Meta | Odometry | Detections | GnssFix | TruthPose | TruthObject

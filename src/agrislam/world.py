@@ -33,13 +33,22 @@ from agrislam.geometry.backend import make_backend
 from agrislam.geometry.calibration import NoiseCalibration, nearest_other
 from agrislam.geometry.depth_bias import DepthBiasEstimator
 from agrislam.geometry.drift import since_seen
+from agrislam.geometry.gnss import GnssFixes
 from agrislam.geometry.noise import SensorModel
 from agrislam.geometry.odometry import OdometryChain
 from agrislam.geometry.rows import RowTracker
 from agrislam.growing import GrowingRows
 from agrislam.maintenance import MaintenanceResult, merge_pairs, prune_due
 from agrislam.objects import ObjectTable
-from agrislam.records import Detection, Detections, FieldPrior, Meta, Odometry, Record
+from agrislam.records import (
+    Detection,
+    Detections,
+    FieldPrior,
+    GnssFix,
+    Meta,
+    Odometry,
+    Record,
+)
 from agrislam.semantics.beliefs import BeliefTable
 from agrislam.semantics.heuristic import interest_surface
 from agrislam.snapshot import STATUS_MERGED, STATUS_PRUNED, MapSnapshot, ObjectMap, Trajectory
@@ -48,6 +57,7 @@ from agrislam.snapshot import STATUS_MERGED, STATUS_PRUNED, MapSnapshot, ObjectM
 STAGES = (
     "check",  # the frame's measurements against the schema (beliefs are predicted lazily)
     "add_pose",  # the robot's pose node and odometry factor
+    "gnss",  # the GNSS fixes since the last pose, as factors on the new one (issue 13)
     "place",  # detections into the map frame, with their covariances
     "associate",  # gate, association matrix, GNN; new objects
     "noise",  # pairs of sightings of re-observed objects scale the noise (calibration.py)
@@ -121,6 +131,7 @@ class WorldModel:
         self.robots: dict[str, OdometryChain] = {}
         self._field_prior: FieldPrior | None = None
         self._settled = False  # the defaults that depend on the survey are chosen
+        self.gnss = GnssFixes(self.config.gnss)
         self._timer = _Timer()
 
     @property
@@ -138,6 +149,8 @@ class WorldModel:
             self.add_odometry(record)
         elif isinstance(record, Detections):
             return self.step(record)
+        elif isinstance(record, GnssFix):
+            self.add_gnss(record)
         return None  # truth records are for evaluation only
 
     def configure(self, meta: Meta) -> None:
@@ -199,6 +212,12 @@ class WorldModel:
         if delta is not None:
             chain.move(odom.t, delta, self.sensor.odometry_covariance(odom.cov))
 
+    def add_gnss(self, fix: GnssFix) -> None:
+        """Keep a fix for the robot's next pose node; the first good fix anchors a survey
+        without an anchor."""
+        chain = self._chain(fix.robot, fix.t)
+        self.anchor = self.gnss.receive(fix, self.anchor, chain.pose)
+
     # ---------------------------------------------------------------- the pipeline
 
     def step(self, frame: Detections) -> StepReport:
@@ -208,8 +227,12 @@ class WorldModel:
             detections = self._within_schema(frame)
             if not self._settled and detections:
                 self._settle_defaults(detections)
+        with timer("gnss"):
+            pose_cov = self._gnss_pose_covariance(robot)
         with timer("add_pose"):
             self._add_pose(robot, t)
+        with timer("gnss"):
+            self.gnss.attach(self.backend, robot, self.robots[robot].pose, pose_cov)
         with timer("place"):
             placed = self._place(robot, detections)
         with timer("associate"):
@@ -259,6 +282,13 @@ class WorldModel:
         if pending is not None:
             delta, parts = pending
             self.backend.add_odometry(robot, t, delta, self.noise.scale.odometry(parts))
+
+    def _gnss_pose_covariance(self, robot: str) -> np.ndarray | None:
+        """The covariance of the robot's latest pose, for the GNSS gate, when fixes wait
+        (the motion since, a fraction of a second, adds little)."""
+        if not self.gnss.pending.get(robot) or self.config.gnss.gate_chi2 <= 0.0:
+            return None
+        return self.backend.current_pose_covariance(robot)
 
     def _place(self, robot: str, detections: list[Detection]) -> PlacedDetections:
         """Detections into the map frame with their covariances (DESIGN step 3), after

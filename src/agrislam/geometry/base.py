@@ -13,6 +13,7 @@ from agrislam.config import RowsConfig, SlamConfig
 from agrislam.geometry.backend import Measurement, RangeBearing, RelativePosition
 from agrislam.geometry.graph import (
     DETECTION,
+    GNSS,
     ODOMETRY,
     PRIOR_POSE,
     ROW_ANCHOR,
@@ -145,6 +146,16 @@ class BackendBase:
 
     def current_pose(self, robot: str) -> np.ndarray:
         return self._estimate(self.graph.robot(robot).keys[-1])
+
+    def add_gnss(self, robot: str, value: np.ndarray, cov: np.ndarray) -> None:
+        """A GNSS fix on the robot's latest pose (geometry/gnss.py: value's layout)."""
+        where = f"GNSS fix of robot {robot!r}"
+        value = np.asarray(value, dtype=float)
+        if value.shape != (6,) or not np.all(np.isfinite(value)):
+            raise ValueError(f"{where}: value must be 6 finite numbers, got {value!r}")
+        cov = check_covariance(cov, 2, where)
+        key = self.graph.robot(robot).keys[-1]
+        self._add(self.graph.add_factor(Factor(GNSS, (key,), value, cov)))
 
     # ------------------------------------------------------------------ objects
     def add_object(self, object_id: int, xy: np.ndarray) -> None:

@@ -18,7 +18,8 @@ import numpy as np
 
 NONE = -1
 DEAD = -1
-MAX_KEYS, MAX_VALUE, MAX_COV = 2, 3, 3
+# a GNSS factor holds six numbers (the fix in the map frame and the lever arm, issue 13)
+MAX_KEYS, MAX_VALUE, MAX_COV = 2, 6, 3
 
 
 @dataclass(slots=True)

@@ -16,7 +16,9 @@ Written (one line each, information matrices as their upper triangle, row by row
 EDGE_POINTXY, EDGE_PRIOR_XY and EDGE_PRIOR_SE2 are g2o's own slam2d types. What g2o has
 no type for is in comment lines at the end of the file, which g2o skips:
 `# agrislam robot NAME FIRST COUNT`, `# agrislam times NAME t0 t1 ...`,
-`# agrislam object VERTEX ID`, `# agrislam row VERTEX ID ANGLE`. GTSAM's readG2o reads
+`# agrislam object VERTEX ID`, `# agrislam row VERTEX ID ANGLE`, and a GNSS fix
+(issue 13) `# agrislam gnss POSE ZX ZY LX LY K KERNEL I(3)` (antenna in the map, lever
+arm, kernel). GTSAM's readG2o reads
 the poses, objects and odometry of such a file (it skips the edge types it has no
 parser for). A detection is solved as bearing and range (its 2x2 covariance carried
 over to first order); its robust kernel is solver configuration, not part of the file.
@@ -35,6 +37,7 @@ import numpy as np
 from agrislam.geometry.base import BackendBase
 from agrislam.geometry.graph import (
     DETECTION,
+    GNSS,
     ODOMETRY,
     PRIOR_POSE,
     ROW_ANCHOR,
@@ -112,7 +115,12 @@ def write_g2o(backend: BackendBase, path: str | Path, fix_first: bool = False) -
         x, y = backend._estimate(key)
         notes.append(f"# agrislam row {vertex[key]} {row} {_num(node.angle)}")
         lines.append(f"VERTEX_XY {vertex[key]} {_num(x)} {_num(y)}")
-    lines.extend(_edge_line(factor, vertex) for factor in graph.factors.values())
+    for factor in graph.factors.values():
+        if factor.kind == GNSS:  # g2o has no such edge: a comment agrislam reads back
+            ids, info = vertex[factor.keys[0]], _upper(np.linalg.inv(factor.cov))
+            notes.append(f"# agrislam gnss {ids} {' '.join(map(_num, factor.value))} {info}")
+        else:
+            lines.append(_edge_line(factor, vertex))
     if fix_first and graph.robots:  # after the edges: GTSAM's reader stops at FIX too
         lines.append(f"FIX {vertex[next(iter(graph.robots.values())).keys[0]]}")
     Path(path).write_text("\n".join(lines + notes) + "\n", encoding="utf-8")
@@ -162,6 +170,7 @@ class _Reader:
         self.xy: dict[int, np.ndarray] = {}
         self.edges: list[tuple[str, list[str], str]] = []
         self.fixed: list[tuple[int, str]] = []
+        self.gnss: list[list[str]] = []
 
     def where(self, n: int) -> str:
         return f"{self.path}:{n}"
@@ -178,6 +187,10 @@ class _Reader:
         self._nodes()
         for tag, fields, where in self.edges:
             self._edge(tag, fields, where)
+        for fields in self.gnss:
+            key, numbers = self._key(int(fields[0]), "gnss"), [float(v) for v in fields[1:]]
+            cov = _inverse(_from_upper(numbers[6:], 2, "gnss"), "gnss")
+            self.graph.add_factor(Factor(GNSS, (key,), np.array(numbers[:6]), cov))
         for vid, where in self.fixed:
             key = self._key(vid, where)
             if key_kind(key) != "x":
@@ -215,6 +228,8 @@ class _Reader:
             self.object_of[int(fields[1])] = int(fields[2])
         elif kind == "row":
             self.row_of[int(fields[1])] = (int(fields[2]), float(fields[3]))
+        elif kind == "gnss":
+            self.gnss.append(fields[1:])
 
     def _nodes(self) -> None:
         # a plain g2o file: every pose in one chain, by vertex id

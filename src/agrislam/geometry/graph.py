@@ -12,6 +12,7 @@ import numpy as np
 
 from agrislam.config import SlamConfig
 from agrislam.geometry.factor_store import Factor, FactorStore
+from agrislam.geometry.gnss import gnss_factor
 from agrislam.geometry.noise import gaussian, one_direction, robust, row_direction, row_normal
 
 # key layout: one symbol letter per node kind; robot r's pose i is x(r * POSES_PER_ROBOT + i)
@@ -25,6 +26,8 @@ DETECTION = "detection"  # keys (pose, object), value (bearing, range), cov 2x2 
 ROW_ANCHOR = "row_anchor"  # keys (row,), value (2,) point, cov: along-row sigma (gauge only)
 ROW_MEMBER = "row_member"  # keys (row, object), value angle, cov cross-row sigma
 ROW_SPACING = "row_spacing"  # keys (row_a, row_b), value (angle, distance), cov sigma
+# keys (pose,), value (antenna x, y in the map, lever arm x, y, kernel k, kernel), cov 2x2
+GNSS = "gnss"
 
 
 def pose_key(robot_index: int, i: int) -> int:
@@ -192,4 +195,6 @@ def make_factor(factor: Factor, slam: SlamConfig) -> gtsam.NonlinearFactor:
         # fixes where along its line a row node sits (gauge only, no effect on plants)
         along = row_direction(float(value[2]))
         return gtsam.PriorFactorPoint2(keys[0], value[:2].copy(), one_direction(along, float(cov)))
+    if kind == GNSS:
+        return gnss_factor(keys[0], value, cov)  # issue 13: the antenna at t + R l
     raise ValueError(f"unknown factor kind {kind!r}")

@@ -66,12 +66,20 @@ def isam2(slam: SlamConfig) -> gtsam.ISAM2:
     return gtsam.ISAM2(params)
 
 
+def shared_copy(graph: gtsam.NonlinearFactorGraph) -> gtsam.NonlinearFactorGraph:
+    """A new graph holding the same factors (no factor is changed in place; a Python
+    CustomFactor, the GNSS factor, cannot be cloned)."""
+    out = gtsam.NonlinearFactorGraph()
+    out.push_back(graph)
+    return out
+
+
 def conditioned(
     graph: gtsam.NonlinearFactorGraph, point: gtsam.Values, fixed: int | None, free: list[int]
 ) -> gtsam.NonlinearFactorGraph:
     """The graph with node `fixed` held at its value (a tight prior) and the other
     `free` nodes given only a weak prior, so that it can be solved on its own."""
-    out = graph.clone()
+    out = shared_copy(graph)
     for key in free:
         sigma = FIXED_SIGMA if key == fixed else FREE_SIGMA
         if key_kind(key) == POSE:
@@ -354,7 +362,7 @@ class IncrementalBackend(BackendBase):
         blanket = [k for k in point.keys() if k not in window]  # noqa: SIM118
         # with the factors already among the blanket's nodes (odometry between keyframes,
         # row spacing): an object seen from two keyframes is known given either
-        around = graph.clone()
+        around = shared_copy(graph)
         factors = self._isam.getFactorsUnsafe()
         for slot in self._slots.inside(set(blanket)):
             around.push_back(factors.at(slot))

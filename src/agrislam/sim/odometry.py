@@ -61,23 +61,40 @@ def step_sigma(delta: np.ndarray, noise: OdometryNoise) -> np.ndarray:
     )
 
 
-def heading_bias(t: np.ndarray, noise: OdometryNoise, rng: np.random.Generator) -> np.ndarray:
-    """Yaw-rate bias (rad/s) over each interval of t: a constant of the configured size with a
-    random sign per robot, plus a slow random walk (bias instability)."""
+def heading_bias(
+    t: np.ndarray, ds: np.ndarray, noise: OdometryNoise, rng: np.random.Generator
+) -> np.ndarray:
+    """Yaw-rate bias (rad/s) over each interval of t (`ds` m driven in each): of the
+    configured size with a random sign per robot, plus a slow random walk (bias
+    instability); with `drift.bias_length`, relaxing over distance instead (DistanceDrift)."""
     dt = np.diff(t)
     walk = np.cumsum(rng.normal(0.0, 1.0, len(dt)) * noise.heading_bias_walk * np.sqrt(dt))
-    return rng.choice([-1.0, 1.0]) * noise.heading_bias + walk
+    sign = rng.choice([-1.0, 1.0])
+    drift = noise.drift
+    if drift.bias_length <= 0.0:
+        return sign * noise.heading_bias + walk
+    keep = np.exp(-ds / drift.bias_length)  # Ornstein-Uhlenbeck in distance, exact steps
+    kick = np.sqrt(1.0 - keep**2) * drift.bias_spread * rng.normal(0.0, 1.0, len(ds))
+    bias, b = np.empty(len(ds)), sign * noise.heading_bias
+    for k, (a, w) in enumerate(zip(keep.tolist(), kick.tolist(), strict=True)):
+        bias[k] = b
+        b = a * b + w
+    return bias
 
 
 def noisy_odometry(
     poses: np.ndarray, t: np.ndarray, noise: OdometryNoise, rng: np.random.Generator
 ) -> OdometryTrack:
-    """What the robot's odometry reports while it follows the true poses (m, 3) at times t."""
+    """What the robot's odometry reports while it follows the true poses (m, 3) at times t:
+    white noise, a heading bias and a distance scale error (neither reported)."""
     true = increments(poses)
     sigma = step_sigma(true, noise)
     measured = true + rng.normal(0.0, 1.0, true.shape) * sigma
-    measured[:, 2] += heading_bias(t, noise, rng) * np.diff(t)
+    ds = np.hypot(true[:, 0], true[:, 1])
+    measured[:, 2] += heading_bias(t, ds, noise, rng) * np.diff(t)
     measured[:, 2] = wrap_angle(measured[:, 2])
+    if noise.drift.scale_sigma > 0.0:
+        measured[:, :2] *= 1.0 + rng.normal(0.0, noise.drift.scale_sigma)
     cov = np.zeros((len(true), 3, 3))
     idx = np.arange(3)
     cov[:, idx, idx] = (noise.report_scale * sigma) ** 2

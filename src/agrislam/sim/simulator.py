@@ -9,6 +9,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from agrislam.config import SECONDS_PER_DAY
+from agrislam.geometry.geodesy import MapFrame
 from agrislam.records import (
     Anchor,
     Detections,
@@ -22,13 +23,14 @@ from agrislam.records import (
 from agrislam.sim.config import SimConfig
 from agrislam.sim.detector import Detector
 from agrislam.sim.field import Field, make_field
+from agrislam.sim.gnss import every_nth, robot_fixes, survey_anchor, with_fixes
 from agrislam.sim.odometry import OdometryTrack, integrate, noisy_odometry
 from agrislam.sim.path import SurveyPath, frame_times, survey_path
 
 # record kinds at one time stamp, in the order they are written
 _TRUTH, _ODOM, _FRAME = 0, 1, 2
 # independent random streams, so changing one part of the config leaves the others alone
-_FIELD, _ODOMETRY, _DETECTOR = 11, 12, 13
+_FIELD, _ODOMETRY, _DETECTOR, _GNSS = 11, 12, 13, 14
 
 
 @dataclass(frozen=True, slots=True)
@@ -136,13 +138,13 @@ class Simulator:
         names = {d: self.robot_names(d if many else None) for d in range(len(self.days))}
         yield self.meta([n for d in names for n in names[d]], list(range(len(self.days))))
         for d in range(len(self.days)):
-            yield from self._day(d, names[d])
+            yield from self._georeferenced(d, names[d], self._day(d, names[d]))
 
     def day_records(self, day: int) -> Iterator[Record]:
         """One survey day as a log of its own (its own meta; robots named r1, r2, ...)."""
         names = self.robot_names()
         yield self.meta(names, [day])
-        yield from self._day(day, names)
+        yield from self._georeferenced(day, names, self._day(day, names))
 
     def _day(self, day: int, names: list[str]) -> Iterator[Record]:
         field = self.field_on(day)
@@ -163,6 +165,21 @@ class Simulator:
             else:
                 dets = detector.frame(sv.poses_frames[i], rngs[k])
                 yield Detections(t=float(t), robot=sv.name, objects=dets, sensor="front")
+
+    def _georeferenced(self, day: int, names: list[str], records: Iterator[Record]):
+        """The day's records with the GNSS receiver's fixes among them, if it has one."""
+        gnss = self.cfg.gnss
+        if gnss is None:
+            yield from records
+            return
+        anchor = self.cfg.anchor
+        frame = MapFrame(survey_anchor(None if anchor is None else Anchor(**anchor.model_dump())))
+        fixes = []
+        for k, name in enumerate(names):
+            sv, rng = self.survey(day, k, name), self._rng(_GNSS, day, k)
+            at = every_nth(sv.t_odom, gnss.rate_hz)
+            fixes += robot_fixes(name, sv.t_odom[at], sv.poses_odom[at], frame, gnss, rng)
+        yield from with_fixes(records, fixes, names)
 
     def _odometry(self, sv: RobotSurvey, i: int, pose: np.ndarray) -> Odometry:
         """The first record of a robot marks where its timeline starts: zero motion, with the

@@ -2,49 +2,31 @@
 QGIS, farm-management software or a web map.
 
 The map frame is a local east-north frame at the anchor, its x axis turned `yaw_deg`
-from east towards north (spec/log-format.md "meta"). Map metres become degrees with
-the meridian and prime-vertical radii of curvature of the WGS84 ellipsoid at the
-anchor: a local tangent plane, good to well under a millimetre over a 100 m field.
+from east towards north (spec/log-format.md "meta"); PROJ turns map metres into degrees
+(geometry/geodesy.py).
 """
 
 from __future__ import annotations
 
 import json
-import math
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from agrislam.geometry.geodesy import MapFrame, check_anchor
 from agrislam.records import Anchor
 from agrislam.sinks.columns import object_columns
 from agrislam.snapshot import MapSnapshot
 
-WGS84_A = 6_378_137.0  # semi-major axis, m
-WGS84_F = 1.0 / 298.257_223_563  # flattening
-WGS84_E2 = WGS84_F * (2.0 - WGS84_F)  # first eccentricity squared
 DEGREE_DECIMALS = 8  # 1e-8 deg: 1.1 mm of latitude
 TRAJECTORY_SOURCES = {"optimised": "trajectories", "dead_reckoning": "dead_reckoning"}
 
 
-def radii_of_curvature(lat_deg: float) -> tuple[float, float]:
-    """Meridian radius M and prime-vertical radius N of WGS84 at a geodetic latitude, m."""
-    s2 = math.sin(math.radians(lat_deg)) ** 2
-    w = math.sqrt(1.0 - WGS84_E2 * s2)
-    return WGS84_A * (1.0 - WGS84_E2) / w**3, WGS84_A / w
-
-
 def map_to_lonlat(xy: np.ndarray, anchor: Anchor) -> np.ndarray:
-    """(k, 2) map-frame metres -> (k, 2) WGS84 longitude, latitude in degrees."""
-    xy = np.asarray(xy, dtype=float).reshape(-1, 2)
-    yaw = math.radians(anchor.yaw_deg)
-    c, s = math.cos(yaw), math.sin(yaw)
-    east = c * xy[:, 0] - s * xy[:, 1]  # the map x axis points yaw_deg north of east
-    north = s * xy[:, 0] + c * xy[:, 1]
-    m, n = radii_of_curvature(anchor.lat)
-    lat = anchor.lat + np.degrees(north / (m + anchor.h))
-    lon = anchor.lon + np.degrees(east / ((n + anchor.h) * math.cos(math.radians(anchor.lat))))
-    return np.column_stack([lon, lat])
+    """(k, 2) map-frame metres -> (k, 2) WGS84 longitude, latitude in degrees (PROJ's
+    topocentric frame at the anchor, geometry/geodesy.py)."""
+    return MapFrame(anchor).to_wgs84(xy)[:, :2]
 
 
 def geojson_dict(snapshot: MapSnapshot) -> dict[str, Any]:
@@ -55,8 +37,7 @@ def geojson_dict(snapshot: MapSnapshot) -> dict[str, Any]:
             "the map has no anchor (meta.anchor: WGS84 lat/lon of the map origin), so it "
             "cannot be placed on the globe; write objects.csv instead or add an anchor"
         )
-    if not (-90.0 < anchor.lat < 90.0 and -180.0 <= anchor.lon <= 180.0):
-        raise ValueError(f"anchor lat/lon ({anchor.lat}, {anchor.lon}) is not a WGS84 position")
+    check_anchor(anchor)
     columns = object_columns(snapshot, distributions=False)
     lonlat = np.round(
         map_to_lonlat(np.column_stack([columns["x"], columns["y"]]), anchor), DEGREE_DECIMALS

@@ -12,6 +12,7 @@ from agrislam.records import (
     Detection,
     Detections,
     DiscreteMeasurement,
+    GnssFix,
     Measurement,
     Meta,
     Odometry,
@@ -37,6 +38,14 @@ def record_to_json(rec: Record) -> dict[str, Any]:
         if rec.sensor is not None:
             out["sensor"] = rec.sensor
         out["objects"] = [_detection_json(d) for d in rec.objects]
+        return out
+    if isinstance(rec, GnssFix):
+        out = {"type": "gnss", "t": float(rec.t), "robot": rec.robot, "lat": float(rec.lat)}
+        out |= {"lon": float(rec.lon), "alt": float(rec.alt), "fix": rec.fix}
+        if rec.cov is not None:
+            out["cov"] = _list(rec.cov)
+        if rec.antenna is not None:
+            out["antenna"] = _list(rec.antenna)
         return out
     if isinstance(rec, TruthPose):
         return {

@@ -13,7 +13,16 @@ from typing import Any, Literal
 import numpy as np
 
 from agrislam.geometry.se2 import compose, quaternion_from_yaw
-from agrislam.records import Detection, Detections, Meta, Odometry, Record, TruthObject, TruthPose
+from agrislam.records import (
+    Detection,
+    Detections,
+    GnssFix,
+    Meta,
+    Odometry,
+    Record,
+    TruthObject,
+    TruthPose,
+)
 from agrislam.ros.conventions import (
     META_TOPIC,
     POSE_COV_INDEX,
@@ -25,10 +34,12 @@ from agrislam.ros.messages import (
     DETECTION3D_ARRAY,
     ODOMETRY,
     STRING,
+    TF_MESSAGE,
     MessageFactory,
     open_ros2_writer,
     seconds_to_ns,
 )
+from agrislam.ros.navsat import NAVSAT_FIX, navsat_message
 from agrislam.sinks.log_lines import record_to_json
 
 
@@ -37,6 +48,7 @@ class _SurveyBagWriter:
         self.writer, self.make = writer, factory
         self.connections: dict[str, Any] = {}
         self.odom_pose: dict[str, np.ndarray] = {}
+        self.antenna: dict[str, np.ndarray | None] = {}  # robot -> antenna in tf_static
         self.last_ns = 0
         self.count = 0
 
@@ -53,6 +65,8 @@ class _SurveyBagWriter:
             self._odometry(rec)
         elif isinstance(rec, Detections):
             self._detections(rec)
+        elif isinstance(rec, GnssFix):
+            self._gnss(rec)
         elif isinstance(rec, Meta | TruthPose | TruthObject):
             topic = META_TOPIC if isinstance(rec, Meta) else TRUTH_TOPIC
             if isinstance(rec, TruthPose):
@@ -85,6 +99,22 @@ class _SurveyBagWriter:
         ns = seconds_to_ns(rec.t)
         self.last_ns = max(self.last_ns, ns)
         self._write(f"/{rec.robot}/odom", ODOMETRY, msg, ns)
+
+    def _gnss(self, rec: GnssFix) -> None:
+        """A fix on /<robot>/gnss/fix in frame <robot>/gnss_link, whose place on the robot
+        goes to /tf_static when it is first given or changes."""
+        ns = seconds_to_ns(rec.t)
+        self.last_ns = max(self.last_ns, ns)
+        frame = f"{rec.robot}/gnss_link"
+        known = self.antenna.get(rec.robot, None)
+        if rec.antenna is not None and (known is None or not np.array_equal(known, rec.antenna)):
+            self.antenna[rec.robot] = np.asarray(rec.antenna, dtype=float)
+            T = np.eye(4)
+            T[:3, 3] = rec.antenna
+            tf = self.make.tf_message([(rec.t, f"{rec.robot}/base_link", frame, T)])
+            self._write("/tf_static", TF_MESSAGE, tf, ns)
+        msg = navsat_message(self.make.T, self.make.header(rec.t, frame), rec)
+        self._write(f"/{rec.robot}/gnss/fix", NAVSAT_FIX, msg, ns)
 
     def _detections(self, rec: Detections) -> None:
         frame = f"{rec.robot}/base_link"
@@ -136,6 +166,8 @@ def write_survey_bag(
     none); the covariance in the hypothesis pose; truth_id as ``id``; range/bearing
     detections as position + ray covariance). Meta, TruthPose and TruthObject ->
     ``/agrislam/meta`` and ``/agrislam/truth`` as survey-log JSON lines (std_msgs/String).
+    GNSS fixes -> ``/<robot>/gnss/fix`` (sensor_msgs/NavSatFix, ros/navsat.py), the antenna
+    as ``/tf_static`` from ``<robot>/base_link`` to ``<robot>/gnss_link``.
     """
     with open_ros2_writer(path, storage) as writer:
         out = _SurveyBagWriter(writer, MessageFactory("humble"))

@@ -27,6 +27,7 @@ class BagSourceConfig(BaseModel):
         None, description="default: Images with 'depth' in the name"
     )
     camera_info_topics: list[str] | None = Field(None, description="default: every CameraInfo")
+    gnss_topics: list[str] | None = Field(None, description="default: every NavSatFix")
     instance_topics: list[str] | None = Field(
         None,
         description="instance images (pixel k = detection k-1); default: 'instance' in the name",

@@ -34,6 +34,7 @@ from agrislam.records import (
     Detections,
     DiscreteMeasurement,
     FieldPrior,
+    GnssFix,
     Measurement,
     Meta,
     Odometry,
@@ -160,6 +161,7 @@ class _Parser:
             "meta": self._meta,
             "odom": self._odom,
             "detections": self._detections,
+            "gnss": self._gnss,
             "truth_pose": self._truth_pose,
             "truth_object": self._truth_object,
         }.get(kind)  # type: ignore[arg-type]
@@ -309,6 +311,14 @@ class _Parser:
             raise BadRecordError(
                 "not_in_schema", f"attribute {name!r}: {_short(value)} not in {spec.values}"
             )
+
+    def _gnss(self, obj: dict) -> GnssFix:
+        """A GNSS fix (docs/log-format.md "gnss", reader version 1.2)."""
+        t, robot = self._timed(obj)
+        lat, lon, alt = (_number(obj, k) for k in ("lat", "lon", "alt"))
+        cov = _covariance(obj, "cov", 3)
+        antenna = _array(obj, "antenna", (3,), required=False)
+        return GnssFix(t, robot, lat, lon, alt, _string(obj, "fix"), cov, antenna)
 
     def _truth_pose(self, obj: dict) -> TruthPose:
         t, robot = self._timed(obj)

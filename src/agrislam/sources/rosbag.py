@@ -58,6 +58,7 @@ from agrislam.perception.label_map import LabelMap, UnknownLabelError
 from agrislam.records import (
     Detection,
     Detections,
+    GnssFix,
     Meta,
     Odometry,
     Record,
@@ -80,6 +81,7 @@ from agrislam.ros.messages import (
     stamp_to_seconds,
     typestore,
 )
+from agrislam.ros.navsat import NAVSAT_FIX, gnss_record
 from agrislam.sources.bag_config import BagSourceConfig
 from agrislam.sources.bag_open import check_bag, opened_bag
 from agrislam.sources.bag_report import BagReport, SkipError
@@ -91,7 +93,9 @@ from agrislam.sources.transforms import TransformTree, planar, pose_matrix
 from agrislam.sources.validate import BadRecordError, check_record
 
 _UNTIMED = 3
-_KIND_RANK = {Meta: -1, TruthPose: 0, Odometry: 1, Detections: 2, TruthObject: _UNTIMED}
+_KIND_RANK = {
+    Meta: -1, TruthPose: 0, Odometry: 1, GnssFix: 1.5, Detections: 2, TruthObject: _UNTIMED
+}  # fmt: skip
 
 
 class _BagReader:
@@ -135,6 +139,7 @@ class _BagReader:
             ),
             "depth": (bag.depth_topics, images_named("depth"), (IMAGE,)),
             "camera_info": (bag.camera_info_topics, of_type.get(CAMERA_INFO, []), (CAMERA_INFO,)),
+            "gnss": (bag.gnss_topics, of_type.get(NAVSAT_FIX, []), (NAVSAT_FIX,)),
             "instance": (bag.instance_topics, images_named("instance"), (IMAGE,)),
             "rgb": (bag.rgb_topics, images_named(r"^(?!.*depth).*(colou?r|rgb)"), (IMAGE,)),
         }
@@ -301,6 +306,8 @@ class _BagReader:
                 self._place_2d(self.rgbd.add_frame(topic, stamp, msg))
             elif role == "camera_info":
                 self.rgbd.camera_info(topic, msg)
+            elif role == "gnss":
+                self._gnss(topic, stamp, msg)
             else:  # depth, instance, rgb images
                 self.rgbd.add_image(topic, stamp, msg)
                 if role == "depth":
@@ -414,6 +421,13 @@ class _BagReader:
                 return None
             return (V * w) @ V.T
         return cov
+
+    def _gnss(self, topic: str, stamp: float, msg: Any) -> None:
+        """A NavSatFix; the antenna's place from tf when tf connects it to the base."""
+        robot, _ = self.robot_of(topic)
+        base = self.base_frames.get(robot) or self.bag.base_frame or "base_link"
+        T = self.tree.lookup(base, msg.header.frame_id) if msg.header.frame_id else None
+        self._emit(gnss_record(msg, stamp, robot, None if T is None else T[:3, 3]), topic)
 
     def to_base(self, frame: str, robot: str) -> np.ndarray:
         base = self.base_frames.get(robot) or self.bag.base_frame or "base_link"

@@ -18,13 +18,15 @@ from typing import Any
 
 import numpy as np
 
-from agrislam.config import InputLimits
+from agrislam.limits import InputLimits
 from agrislam.records import (
+    FIX_TYPES,
     Anchor,
     ContinuousMeasurement,
     Detection,
     Detections,
     FieldPrior,
+    GnssFix,
     Meta,
     Odometry,
     Record,
@@ -86,6 +88,8 @@ def check_record(record: Record, limits: InputLimits) -> Record:
         return check.odometry(record)
     if isinstance(record, Detections):
         return check.detections(record)
+    if isinstance(record, GnssFix):
+        return check.gnss(record)
     if isinstance(record, TruthPose):
         check.time(record.t)
         check.pose(record.pose, "pose")
@@ -193,6 +197,21 @@ class _Checker:
         if odom.cov is None:
             return odom
         return dataclasses.replace(odom, cov=check_covariance(odom.cov, "'cov'", self.limits))
+
+    def gnss(self, fix: GnssFix) -> GnssFix:
+        """Latitude and longitude on the globe, a known fix type, a positive definite ENU
+        covariance, an antenna within reach of the robot."""
+        self.time(fix.t)
+        self.bounded(fix.lat, 90.0, "'lat'", " deg")
+        self.bounded(fix.lon, 180.0, "'lon'", " deg")
+        self.bounded(fix.alt, self.limits.max_coordinate, "'alt'", " m")
+        if fix.fix not in FIX_TYPES:
+            raise BadRecordError("bad_value", f"'fix' {_short(fix.fix)} is not one of {FIX_TYPES}")
+        if fix.antenna is not None:
+            self.coordinates(fix.antenna, "'antenna'", self.limits.max_motion)
+        if fix.cov is None:
+            return fix
+        return dataclasses.replace(fix, cov=check_covariance(fix.cov, "'cov'", self.limits))
 
     def detections(self, frame: Detections) -> Detections:
         self.time(frame.t)

@@ -1,0 +1,48 @@
+"""GNSS in the world model (issue 13): a survey with RTK fixes is mapped where the truth is,
+without alignment, on both back ends; the fixes are counted in metrics.json; a survey
+without an anchor takes the first good fix as its anchor."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+
+import pytest
+
+from agrislam.config import AgrislamConfig
+from agrislam.pipeline import run_survey
+from agrislam.records import Meta
+from agrislam.sim.config import SimConfig
+from agrislam.sim.simulator import Simulator
+from agrislam.world import WorldModel
+
+
+def survey(gnss: bool, plants: int = 60) -> list:
+    cfg = SimConfig.model_validate(
+        {"field": {"n_plants": plants, "n_rows": 3}, "gnss": {} if gnss else None}
+    )
+    return list(Simulator(cfg).records())
+
+
+@pytest.mark.parametrize("backend", ["incremental", "batch"])
+def test_rtk_fixes_put_the_map_where_the_truth_is(backend: str, tmp_path: Path) -> None:
+    config = AgrislamConfig.model_validate({"slam": {"backend": backend, "window": 20}})
+    with_gnss = run_survey(survey(True), WorldModel(config), tmp_path / "gnss")
+    without = run_survey(survey(False), WorldModel(config))
+    traj = with_gnss.metrics["trajectory"]["optimised"]["rms_position"]
+    assert traj < 0.03 < without.metrics["trajectory"]["optimised"]["rms_position"]
+    assert with_gnss.metrics["objects"]["position_rms"] < 0.03
+    counts = json.loads((tmp_path / "gnss" / "metrics.json").read_text())["gnss"]
+    assert counts["used"] > 0.95 * counts["received"] > 0
+    assert {"map.geojson", "map.gpkg"} <= {p.name for p in with_gnss.outputs}
+
+
+def test_without_an_anchor_the_first_good_fix_is_one() -> None:
+    records = [
+        dataclasses.replace(r, anchor=None) if isinstance(r, Meta) else r for r in survey(True)
+    ]
+    world = WorldModel()
+    result = run_survey(records, world)
+    assert world.anchor is not None and world.anchor.yaw_deg == 0.0
+    assert result.gnss["used"] > 0
