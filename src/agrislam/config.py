@@ -465,6 +465,18 @@ class MaintenanceConfig(_Strict):
     prune_grace_s: float = Field(20.0, ge=0.0, description="s unseen before pruning")
 
 
+class CheckpointConfig(_Strict):
+    """Checkpoints of a run in its map.sqlite, for `agrislam run --resume`."""
+
+    every_frames: int = Field(
+        1000,
+        ge=0,
+        description="frames between checkpoints (0 = none); a checkpoint rebuilds the "
+        "back end's iSAM2 from its saved state, so the interval is part of the run's config "
+        "and a resumed run ends with the same map as one never stopped",
+    )
+
+
 class AgrislamConfig(_Strict):
     """Root configuration of a run; every value has a default (`agrislam config --defaults`)."""
 
@@ -479,6 +491,7 @@ class AgrislamConfig(_Strict):
     slam: SlamConfig = Field(default_factory=SlamConfig)
     rows: RowsConfig = Field(default_factory=RowsConfig)
     maintenance: MaintenanceConfig = Field(default_factory=MaintenanceConfig)
+    checkpoint: CheckpointConfig = Field(default_factory=CheckpointConfig)
     label_map: dict[str, dict[str, str]] = Field(
         default_factory=dict,
         description="combined detector label -> attribute values, e.g. "

@@ -4,8 +4,9 @@ rewrite, the global refinement solves and g2o files hold."""
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
+from typing import Any
 
 import gtsam
 import numpy as np
@@ -83,6 +84,22 @@ class SurveyGraph:
         self.factors_of: dict[int, set[int]] = {}  # node key -> ids of its factors
         self.row_of: dict[int, int] = {}  # object id -> row id of its row constraint
         self._next_factor = 0
+
+    # ------------------------------------------------------ pickle (checkpoints)
+    def __getstate__(self) -> dict:
+        """The factors as columns, one group per kind and shape (tens of thousands of
+        small records pickle slowly one by one); `factors_of` is rebuilt from them."""
+        state = self.__dict__.copy()
+        state["factors"] = factor_columns(self.factors)
+        del state["factors_of"]
+        return state
+
+    def __setstate__(self, state: dict) -> None:
+        factors = factor_rows(state.pop("factors"))
+        self.__dict__.update(state, factors=factors, factors_of={})
+        for fid, factor in factors.items():
+            for key in factor.keys:
+                self.factors_of.setdefault(key, set()).add(fid)
 
     # ---------------------------------------------------------------- nodes
     def robot(self, robot: str) -> RobotChain:
@@ -176,6 +193,42 @@ class SurveyGraph:
             yield from chain.keys
         yield from (object_key(i) for i in self.objects)
         yield from (row_key(r) for r in self.rows)
+
+
+def _form(x: np.ndarray | float) -> tuple[str, tuple[int, ...]]:
+    return type(x).__name__, np.shape(x)
+
+
+def factor_columns(factors: dict[int, Factor]) -> tuple[list[int], list[tuple]]:
+    """Factors as (ids in their order, groups): each group the factors of one kind and
+    one form of value and covariance, as (form, ids, keys, values, covariances) arrays."""
+    groups: dict[tuple, list[int]] = {}
+    for fid, f in factors.items():
+        groups.setdefault((f.kind, len(f.keys), _form(f.value), _form(f.cov)), []).append(fid)
+    columns = []
+    for form, fids in groups.items():
+        rows = [factors[fid] for fid in fids]
+        keys = np.array([f.keys for f in rows], dtype=np.uint64).reshape(len(rows), form[1])
+        values = np.array([f.value for f in rows], dtype=float)
+        covs = np.array([f.cov for f in rows], dtype=float)
+        columns.append((form, np.array(fids), keys, values, covs))
+    return list(factors), columns
+
+
+def factor_rows(columns: tuple[list[int], list[tuple]]) -> dict[int, Factor]:
+    """The factors `factor_columns` gave, each value and covariance of its own type."""
+    order, groups = columns
+    made: dict[int, Factor] = {}
+    for (kind, _, value_form, cov_form), fids, keys, values, covs in groups:
+        value_of, cov_of = _maker(value_form[0]), _maker(cov_form[0])
+        for fid, k, v, c in zip(fids.tolist(), keys.tolist(), values, covs, strict=True):
+            made[fid] = Factor(kind, tuple(k), value_of(v), cov_of(c))
+    return {fid: made[fid] for fid in order}
+
+
+def _maker(type_name: str) -> Callable[[np.ndarray], Any]:
+    """A value of the saved type back from its numpy row."""
+    return {"float": float, "int": int, "float64": np.float64}.get(type_name, np.array)
 
 
 def make_factor(factor: Factor, slam: SlamConfig) -> gtsam.NonlinearFactor:

@@ -40,6 +40,8 @@ from agrislam.geometry.isam_state import (
     SlotTable,
     anchor_factor,
     per_distinct,
+    restore_isam2,
+    serialised_isam2,
     values_at,
 )
 from agrislam.geometry.se2 import between, compose, point_jacobian, rotation, to_robot_frame
@@ -103,6 +105,26 @@ class IncrementalBackend(BackendBase):
         self._folded_heading: dict[int, float] = {}  # keyframe -> heading when folded onto
         self.rolls = 0
         self.refines = 0
+
+    # -------------------------------------------------------- pickle (checkpoints)
+    def __getstate__(self) -> dict:
+        """The state to pickle: iSAM2 itself cannot be, so the pending update is solved
+        first and iSAM2 is kept as its live factors (in slot order) and linearisation
+        point, in GTSAM's own serialisation (exact to the last bit)."""
+        self._solve_pending()
+        state = self.__dict__.copy()
+        state["_isam"] = serialised_isam2(self._isam, [s for s, _ in self._slots.ordered()])
+        state["_cov_cache"] = {}
+        return state
+
+    def __setstate__(self, state: dict) -> None:
+        """A new iSAM2 of the saved factors at the saved linearisation point; the slots
+        are numbered afresh in the saved order."""
+        saved = state.pop("_isam")
+        self.__dict__.update(state)
+        self._isam = isam2(self.slam)
+        restore_isam2(self._isam, saved)
+        self._slots.reset(entry for _, entry in self._slots.ordered())
 
     # ------------------------------------------------------------ solver hooks
     def _insert(self, key: int, value: np.ndarray) -> None:
