@@ -199,14 +199,17 @@ class Checkpoints:
 
     def resume(self) -> RunState | None:
         """The state of the checkpoint in `path`, after checking that it is of this input
-        and config; None if there is none to resume from (no map.sqlite, or a run killed
-        before its first checkpoint): the run starts from its first record."""
+        and config; None if there is none to resume from (no map.sqlite, a run killed
+        before its first checkpoint or while writing its outputs): the run starts from its
+        first record."""
         if not self.path.exists():
             return None
         try:
             entries = read_checkpoint(self.path)
         except Exception as err:
             raise ResumeError(f"--resume: {self.path} cannot be read ({err})") from None
+        if entries is None and not (self.path.parent / "metrics.json").exists():
+            return None  # killed while it wrote its outputs: its map.sqlite is the last word
         if entries is None:
             raise ResumeError(
                 f"--resume: {self.path} is the map of a finished run, with no checkpoint: "

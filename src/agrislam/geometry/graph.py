@@ -196,22 +196,21 @@ class SurveyGraph:
 
 
 def _form(x: np.ndarray | float) -> tuple[str, tuple[int, ...]]:
-    return type(x).__name__, np.shape(x)
+    return type(x).__name__, x.shape if isinstance(x, np.ndarray) else ()
 
 
 def factor_columns(factors: dict[int, Factor]) -> tuple[list[int], list[tuple]]:
     """Factors as (ids in their order, groups): each group the factors of one kind and
-    one form of value and covariance, as (form, ids, keys, values, covariances) arrays."""
+    one form of value and covariance, as (form, ids, keys, values, covariances)."""
     groups: dict[tuple, list[int]] = {}
     for fid, f in factors.items():
-        groups.setdefault((f.kind, len(f.keys), _form(f.value), _form(f.cov)), []).append(fid)
+        groups.setdefault((f.kind, _form(f.value), _form(f.cov)), []).append(fid)
     columns = []
     for form, fids in groups.items():
         rows = [factors[fid] for fid in fids]
-        keys = np.array([f.keys for f in rows], dtype=np.uint64).reshape(len(rows), form[1])
         values = np.array([f.value for f in rows], dtype=float)
         covs = np.array([f.cov for f in rows], dtype=float)
-        columns.append((form, np.array(fids), keys, values, covs))
+        columns.append((form, fids, [f.keys for f in rows], values, covs))
     return list(factors), columns
 
 
@@ -219,10 +218,10 @@ def factor_rows(columns: tuple[list[int], list[tuple]]) -> dict[int, Factor]:
     """The factors `factor_columns` gave, each value and covariance of its own type."""
     order, groups = columns
     made: dict[int, Factor] = {}
-    for (kind, _, value_form, cov_form), fids, keys, values, covs in groups:
+    for (kind, value_form, cov_form), fids, keys, values, covs in groups:
         value_of, cov_of = _maker(value_form[0]), _maker(cov_form[0])
-        for fid, k, v, c in zip(fids.tolist(), keys.tolist(), values, covs, strict=True):
-            made[fid] = Factor(kind, tuple(k), value_of(v), cov_of(c))
+        for fid, k, v, c in zip(fids, keys, values, covs, strict=True):
+            made[fid] = Factor(kind, k, value_of(v), cov_of(c))
     return {fid: made[fid] for fid in order}
 
 
