@@ -128,13 +128,13 @@ class InputFingerprint:
             return None if saved["input"] == self.name else f"it read {saved['input']}"
         mine = {self._label(p): p for p in self._hashes}
         for label, (size, hexdigest) in saved["files"].items():
-            path = mine.get(label)
+            path, what = mine.get(label), "the file" if label == "." else label
             if path is None:
-                return f"{label} is missing"
+                return f"{what} is missing"
             if path.stat().st_size < size:
-                return f"{label} is shorter than the {size} bytes it had read"
+                return f"{what} is shorter than the {size} bytes it had read"
             if _prefix_digest(path, size) != hexdigest:
-                return f"the first {size} bytes of {label} are not those it read"
+                return f"the first {size} bytes of {what} are not those it read"
         return None
 
 
