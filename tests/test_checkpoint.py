@@ -26,7 +26,7 @@ from agrislam.checkpoint import (
     dump_state,
     load_state,
 )
-from agrislam.config import AgrislamConfig
+from agrislam.config import AgrislamConfig, CheckpointConfig
 from agrislam.pipeline import RunError, run_survey
 from agrislam.records import TruthObject, TruthPose
 from agrislam.sinks.jsonl import write_log
@@ -40,7 +40,8 @@ EVERY = 20  # frames between checkpoints (the 40-plant survey has 178 frames)
 
 
 def config(**more: object) -> AgrislamConfig:
-    return AgrislamConfig.model_validate({"checkpoint": {"every_frames": EVERY}, **more})
+    every = {"every_frames": EVERY, "frames_per_mb": 0.0}
+    return AgrislamConfig.model_validate({"checkpoint": every, **more})
 
 
 @pytest.fixture(scope="module")
@@ -61,7 +62,7 @@ def uninterrupted(log, tmp_path_factory):
 
 def _checkpoints(log: Path, out: Path, cfg: AgrislamConfig) -> Checkpoints:
     identity = config_identity(cfg, strict=False)
-    return Checkpoints(out / "map.sqlite", InputFingerprint(log), identity, EVERY)
+    return Checkpoints(out / "map.sqlite", InputFingerprint(log), identity, cfg.checkpoint)
 
 
 def _run(log: Path, out: Path, cfg: AgrislamConfig, resume: bool = False, progress=None):
@@ -110,15 +111,16 @@ def test_a_run_killed_with_sigkill_leaves_a_readable_checkpoint_and_resumes_to_t
     runner = f"""
         import time
         from agrislam.checkpoint import Checkpoints, InputFingerprint, config_identity
-        from agrislam.config import AgrislamConfig
+        from agrislam.config import AgrislamConfig, CheckpointConfig
         from agrislam.pipeline import run_survey
         from agrislam.sources import open_source
         from agrislam.world import WorldModel
-        cfg = AgrislamConfig.model_validate({{"checkpoint": {{"every_frames": {EVERY}}}}})
+        every = {{"every_frames": {EVERY}, "frames_per_mb": 0.0}}
+        cfg = AgrislamConfig.model_validate({{"checkpoint": every}})
         log, out = {str(log)!r}, {str(out)!r}
         checkpoints = Checkpoints(
             __import__("pathlib").Path(out) / "map.sqlite", InputFingerprint(log),
-            config_identity(cfg, strict=False), {EVERY},
+            config_identity(cfg, strict=False), cfg.checkpoint,
         )
         run_survey(open_source(log, cfg), WorldModel(cfg), out, lambda: time.sleep(0.01),
                    checkpoints=checkpoints)
@@ -209,3 +211,15 @@ def test_the_cli_takes_resume_but_not_with_force(log, tmp_path):
     args = ["run", str(log), "--out", str(tmp_path / "run"), "--resume", "--force"]
     result = CliRunner().invoke(app, args)
     assert result.exit_code == 2 and "give one" in result.output
+
+
+def test_checkpoints_grow_apart_with_the_state_they_save(tmp_path):
+    every = CheckpointConfig(every_frames=10, frames_per_mb=1000.0)
+    checkpoints = Checkpoints(tmp_path / "map.sqlite", InputFingerprint("sim:"), "", every)
+    assert not checkpoints.due(9) and checkpoints.due(10)
+    checkpoints._after(10, b"x" * 5_000)  # 5 kB: 5 frames, less than every_frames
+    assert not checkpoints.due(19) and checkpoints.due(20)
+    checkpoints._after(20, b"x" * 50_000)  # 50 kB: 50 frames
+    assert not checkpoints.due(69) and checkpoints.due(70)
+    never = CheckpointConfig(every_frames=0)
+    assert not Checkpoints(tmp_path / "m", InputFingerprint("sim:"), "", never).due(1000)

@@ -30,6 +30,7 @@ from __future__ import annotations
 import hashlib
 import io
 import json
+import math
 import pickle
 import time
 from collections import Counter
@@ -37,7 +38,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from agrislam.config import AgrislamConfig
+from agrislam.config import AgrislamConfig, CheckpointConfig
 from agrislam.sinks.sqlite import read_checkpoint, write_checkpoint
 from agrislam.world import WorldModel
 
@@ -162,20 +163,28 @@ def config_identity(config: AgrislamConfig, **source: Any) -> str:
 
 
 class Checkpoints:
-    """The checkpoints of one run in `path` (its map.sqlite): `take` every `every_frames`
-    frames, `resume` from the one there. `config`: `config_identity` of the run."""
+    """The checkpoints of one run in `path` (its map.sqlite): `take` when `due`, `resume`
+    from the one there. `config`: `config_identity` of the run; `every`: its checkpoint
+    section. The frames between checkpoints grow with the size of the state they save
+    (`frames_per_mb`), so that saving costs the same share of the run on any map; they
+    follow from the state alone, so a resumed run takes its next ones where the run it
+    resumes would have."""
 
     def __init__(
-        self, path: Path, input_: InputFingerprint, config: str, every_frames: int
+        self, path: Path, input_: InputFingerprint, config: str, every: CheckpointConfig
     ) -> None:
-        self.path, self.input, self.config = Path(path), input_, config
-        self.every_frames = every_frames
+        self.path, self.input, self.config, self.every = Path(path), input_, config, every
         self.last: dict[str, bytes] | None = None  # the latest checkpoint's entries
         self.taken = 0
         self.seconds = 0.0
+        self._next = every.every_frames  # frames at which the next one is due
 
     def due(self, n_frames: int) -> bool:
-        return self.every_frames > 0 and n_frames > 0 and n_frames % self.every_frames == 0
+        return self.every.every_frames > 0 and n_frames >= self._next
+
+    def _after(self, n_frames: int, blob: bytes) -> None:
+        spacing = math.ceil(len(blob) / 1e6 * self.every.frames_per_mb)
+        self._next = n_frames + max(self.every.every_frames, spacing)
 
     def take(self, state: RunState) -> RunState:
         """Save `state` with the map so far; returns the state read back from what was
@@ -191,6 +200,7 @@ class Checkpoints:
             "position": str(state.position).encode(),
         }
         write_checkpoint(self.path, entries, snapshot)
+        self._after(state.n_frames, blob)
         restored = load_state(blob)
         self.last = entries
         self.taken += 1
@@ -233,4 +243,6 @@ class Checkpoints:
                 "with the same, or use --force to start over"
             )
         self.last = entries
-        return load_state(entries["state"])
+        state = load_state(entries["state"])
+        self._after(state.n_frames, entries["state"])
+        return state

@@ -150,7 +150,7 @@ def _survey(
                 folder.path / "map.sqlite",
                 InputFingerprint(path_or_uri),
                 identity,
-                cfg.checkpoint.every_frames,
+                cfg.checkpoint,
             )
             if folder.replaced:
                 console.print(f"--force: replaced the earlier run's {', '.join(folder.replaced)}")

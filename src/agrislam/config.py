@@ -471,9 +471,16 @@ class CheckpointConfig(_Strict):
     every_frames: int = Field(
         1000,
         ge=0,
-        description="frames between checkpoints (0 = none); a checkpoint rebuilds the "
+        description="frames between checkpoints at least (0 = none); a checkpoint rebuilds the "
         "back end's iSAM2 from its saved state, so the interval is part of the run's config "
         "and a resumed run ends with the same map as one never stopped",
+    )
+    frames_per_mb: float = Field(
+        250.0,
+        ge=0.0,
+        description="and at least this many frames per MB of the saved state: saving "
+        "grows with the map, so checkpoints grow apart and keep costing the same share of "
+        "the run (250: about 2 %)",
     )
 
 
