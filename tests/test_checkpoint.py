@@ -223,3 +223,14 @@ def test_checkpoints_grow_apart_with_the_state_they_save(tmp_path):
     assert not checkpoints.due(69) and checkpoints.due(70)
     never = CheckpointConfig(every_frames=0)
     assert not Checkpoints(tmp_path / "m", InputFingerprint("sim:"), "", never).due(1000)
+
+
+def test_force_removes_the_journal_of_a_checkpoint_cut_by_a_kill(tmp_path):
+    """A hot journal left beside a new map.sqlite would be rolled back into it."""
+    from agrislam.sinks.run_folder import RunFolder, RunFolderError
+
+    (tmp_path / "map.sqlite-journal").write_bytes(b"journal of a killed checkpoint")
+    with pytest.raises(RunFolderError, match="map.sqlite-journal"):
+        RunFolder(tmp_path).open()
+    with RunFolder(tmp_path, force=True):
+        assert not (tmp_path / "map.sqlite-journal").exists()

@@ -34,6 +34,7 @@ OUTPUT_NAMES = (
     "objects.csv",
     "trajectory.csv",
     "map.sqlite",
+    "map.sqlite-journal",  # a checkpoint's transaction cut by a kill (rolled back on open)
     "skipped.csv",
     "map.geojson",
     "map.mcap",
