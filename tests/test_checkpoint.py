@@ -230,7 +230,19 @@ def test_force_removes_the_journal_of_a_checkpoint_cut_by_a_kill(tmp_path):
     from agrislam.sinks.run_folder import RunFolder, RunFolderError
 
     (tmp_path / "map.sqlite-journal").write_bytes(b"journal of a killed checkpoint")
-    with pytest.raises(RunFolderError, match="map.sqlite-journal"):
+    with pytest.raises(RunFolderError, match=r"map\.sqlite-journal"):
         RunFolder(tmp_path).open()
     with RunFolder(tmp_path, force=True):
         assert not (tmp_path / "map.sqlite-journal").exists()
+
+
+def test_a_checkpoint_that_cannot_be_written_is_an_issue_and_the_run_goes_on(
+    log, uninterrupted, tmp_path, monkeypatch
+):
+    def full_disk(*args, **kwargs):
+        raise sqlite3.OperationalError("database or disk is full")
+
+    monkeypatch.setattr("agrislam.checkpoint.write_checkpoint", full_disk)
+    result = _run(log, tmp_path, config())
+    assert result.issues["checkpoint not written: OperationalError: database or disk is full"]
+    _same_map(uninterrupted, result.snapshot)

@@ -32,6 +32,7 @@ import io
 import json
 import math
 import pickle
+import sqlite3
 import time
 from collections import Counter
 from dataclasses import dataclass, field
@@ -177,6 +178,7 @@ class Checkpoints:
         self.last: dict[str, bytes] | None = None  # the latest checkpoint's entries
         self.taken = 0
         self.seconds = 0.0
+        self.issues: Counter[str] = Counter()  # checkpoints that could not be written, why
         self._next = every.every_frames  # frames at which the next one is due
 
     def due(self, n_frames: int) -> bool:
@@ -188,9 +190,14 @@ class Checkpoints:
 
     def take(self, state: RunState) -> RunState:
         """Save `state` with the map so far; returns the state read back from what was
-        saved, which the run carries on with (see the module docstring)."""
+        saved, which the run carries on with (see the module docstring). A checkpoint that
+        cannot be written (a full disk) is an issue of the run, which goes on the same."""
         start = time.perf_counter()
-        snapshot = state.world.snapshot()  # before the state is saved: it may settle it
+        try:
+            snapshot = state.world.snapshot()  # before the state is saved: it may settle it
+        except Exception as err:  # the tables keep the last map that could be read
+            self.issues[f"checkpoint without its map: {type(err).__name__}: {err}"] += 1
+            snapshot = None
         blob = dump_state(state)
         entries = {
             "format": FORMAT,
@@ -199,11 +206,14 @@ class Checkpoints:
             "config": self.config.encode(),
             "position": str(state.position).encode(),
         }
-        write_checkpoint(self.path, entries, snapshot)
+        try:
+            write_checkpoint(self.path, entries, snapshot)
+            self.last = entries
+            self.taken += 1
+        except (OSError, sqlite3.Error) as err:
+            self.issues[f"checkpoint not written: {type(err).__name__}: {err}"] += 1
         self._after(state.n_frames, blob)
         restored = load_state(blob)
-        self.last = entries
-        self.taken += 1
         self.seconds += time.perf_counter() - start
         return restored
 

@@ -173,6 +173,7 @@ def _run(
     for frame, reason in synced.unplaced:
         issues[f"frame of {frame.robot!r} not placed: {reason}"] += 1
     issues.update(world.issues)
+    issues.update(checkpoints.issues if checkpoints is not None else {})
     result = RunResult(None, None, wall, n_frames, [], dict(issues), error, dict(counts))
     result.source_report = source.report if source is not None else None
     if checkpoints is not None:
