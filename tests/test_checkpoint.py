@@ -246,3 +246,20 @@ def test_a_checkpoint_that_cannot_be_written_is_an_issue_and_the_run_goes_on(
     result = _run(log, tmp_path, config())
     assert result.issues["checkpoint not written: OperationalError: database or disk is full"]
     _same_map(uninterrupted, result.snapshot)
+
+
+def test_a_state_that_cannot_be_saved_turns_checkpoints_off_and_the_run_goes_on(
+    log, uninterrupted, tmp_path, monkeypatch
+):
+    """A part added to the world that pickle refuses must not stop users' runs (the first
+    test of this file is what fails for it)."""
+    real_step = WorldModel.step
+
+    def step(self, frame):
+        self.unsaveable = lambda: None  # pickle cannot take a lambda
+        return real_step(self, frame)
+
+    monkeypatch.setattr(WorldModel, "step", step)
+    result = _run(log, tmp_path, config())
+    assert any(k.startswith("checkpoints off: the state cannot be saved") for k in result.issues)
+    assert result.checkpoints["taken"] == 0 and len(result.snapshot.objects.ids) > 30

@@ -87,6 +87,8 @@ def load_state(blob: bytes) -> RunState:
 
 def adopt(world: WorldModel, saved: WorldModel) -> None:
     """`world` becomes `saved` (the caller's object carries the restored state)."""
+    if saved is world:
+        return
     vars(world).clear()
     vars(world).update(vars(saved))
 
@@ -179,7 +181,7 @@ class Checkpoints:
         self.taken = 0
         self.seconds = 0.0
         self.issues: Counter[str] = Counter()  # checkpoints that could not be written, why
-        self._next = every.every_frames  # frames at which the next one is due
+        self._next: float = every.every_frames  # frames at which the next one is due
 
     def due(self, n_frames: int) -> bool:
         return self.every.every_frames > 0 and n_frames >= self._next
@@ -198,7 +200,12 @@ class Checkpoints:
         except Exception as err:  # the tables keep the last map that could be read
             self.issues[f"checkpoint without its map: {type(err).__name__}: {err}"] += 1
             snapshot = None
-        blob = dump_state(state)
+        try:
+            blob = dump_state(state)
+        except (TypeError, AttributeError, pickle.PicklingError) as err:  # a part pickle refuses
+            self.issues[f"checkpoints off: the state cannot be saved ({err})"] += 1
+            self._next = math.inf
+            return state
         entries = {
             "format": FORMAT,
             "state": blob,
