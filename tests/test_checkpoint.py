@@ -208,9 +208,14 @@ def test_the_cli_takes_resume_but_not_with_force(log, tmp_path):
 
     from agrislam.cli import app
 
-    args = ["run", str(log), "--out", str(tmp_path / "run"), "--resume", "--force"]
-    result = CliRunner().invoke(app, args)
+    args = ["run", str(log), "--out", str(tmp_path / "run"), "--resume"]
+    result = CliRunner().invoke(app, [*args, "--force"])
     assert result.exit_code == 2 and "give one" in result.output
+    result = CliRunner().invoke(app, args)
+    assert result.exit_code == 0, result.output
+    assert "no checkpoint in --out to resume from" in result.output
+    result = CliRunner().invoke(app, args)
+    assert result.exit_code == 2 and "finished run, with no checkpoint" in result.output
 
 
 def test_checkpoints_grow_apart_with_the_state_they_save(tmp_path):
