@@ -3,8 +3,8 @@
 A 2,000-plant survey (`sim:?plants=2000`) is recorded to a JSONL log with
 `agrislam simulate --record`; then, each `agrislam run LOG` in its own process:
 
-- the uninterrupted run with the default config (checkpoints every
-  `checkpoint.every_frames` frames): the reference map;
+- the uninterrupted run with the default config (checkpoints at least every
+  `checkpoint.every_frames` frames, further apart as the state grows): the reference map;
 - the same run without checkpoints (`checkpoint.every_frames: 0`), interleaved with it
   `--repeats` times (the best of each), the baseline of the
   overhead: wall time with and without, beside the time the run itself spent in
