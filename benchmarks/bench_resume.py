@@ -34,6 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
+from agrislam.config import AgrislamConfig
 from agrislam.sinks.sqlite import load_map
 
 TOLERANCE_M = 1e-6
@@ -132,6 +133,12 @@ def main() -> None:
           f"{wall_with / wall_without - 1:+.1%} process wall time; target <= 5 %")  # fmt: skip
     print(f"map with against without checkpoints: same ids {same}, positions differ by "
           f"{moved:.2e} m (a checkpoint rebuilds iSAM2; see agrislam/checkpoint.py)")  # fmt: skip
+    first = AgrislamConfig().checkpoint.every_frames  # frames before the first checkpoint
+    steps = [sum(load_map(f / "map.sqlite").step_times.values()) for f in (reference, baseline)]
+    before, after = (steps[0][part].sum() / steps[1][part].sum() for part in (
+        slice(0, first), slice(first, None)))  # fmt: skip
+    print(f"step time with / without checkpoints, last runs: {before:.2f} before the first "
+          f"checkpoint (the same work: the machine's load), {after:.2f} after it")  # fmt: skip
     for name, folder in (("with", reference), ("without", baseline)):
         times = load_map(folder / "map.sqlite").step_times
         stages = ", ".join(f"{k} {v.sum():.1f}" for k, v in times.items() if v.sum() > 1.0)
