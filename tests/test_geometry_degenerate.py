@@ -8,7 +8,7 @@ import numpy as np
 
 from agrislam.config import AgrislamConfig, RowsConfig, SlamConfig
 from agrislam.geometry.backend import RelativePosition, detection_covariance, make_backend
-from agrislam.geometry.incremental import FREE_SIGMA, component, indeterminate_key
+from agrislam.geometry.conditioning import FREE_SIGMA, component, indeterminate_key
 from agrislam.pipeline import run_survey
 from agrislam.sim.arena import ArenaSimulator
 from agrislam.sim.config import ArenaConfig

@@ -22,6 +22,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from rich.table import Table
 
 from agrislam import __version__
+from agrislam.checkpoint import Checkpoints, InputFingerprint, config_identity
 from agrislam.config import AgrislamConfig, load_mapping
 from agrislam.pipeline import RunError, RunResult, describe, run_survey
 from agrislam.records import Record
@@ -119,9 +120,17 @@ def run(
     ] = False,
     force: ForceOption = False,
     formats: FormatOption = None,
+    resume: Annotated[
+        bool,
+        typer.Option(
+            "--resume",
+            help="Carry on a killed or stopped run in --out from its last checkpoint "
+            "(same input and config); without one, start from the first record.",
+        ),
+    ] = False,
 ) -> None:
     """Map a recorded (or simulated) survey."""
-    _survey(log, config, out, strict=strict, force=force, formats=formats)
+    _survey(log, config, out, strict=strict, force=force, formats=formats, resume=resume)
 
 
 def _survey(
@@ -133,6 +142,7 @@ def _survey(
     record: Path | None = None,
     force: bool = False,
     formats: list[str] | None = None,
+    resume: bool = False,
 ) -> None:
     """Open the source, run the survey, print the source's report and the run's summary.
     The config file's ``bag:`` and ``sim:`` sections go to the source that reads them.
@@ -144,8 +154,17 @@ def _survey(
         if formats:
             data.setdefault("outputs", {})["formats"] = formats
         cfg = _validated(AgrislamConfig, data, config)
+        if resume and force:
+            raise ValueError("--resume carries on the run in --out, --force replaces it: give one")
         source = open_source(path_or_uri, cfg, strict=strict, **sections)
-        with RunFolder(out, force=force) as folder:
+        identity = config_identity(cfg, strict=strict, **sections)
+        with RunFolder(out, force=force, resume=resume) as folder:
+            checkpoints = Checkpoints(
+                folder.path / "map.sqlite",
+                InputFingerprint(path_or_uri),
+                identity,
+                cfg.checkpoint,
+            )
             if folder.replaced:
                 console.print(f"--force: replaced the earlier run's {', '.join(folder.replaced)}")
             records: Iterable[Record] | Source = source
@@ -155,7 +174,9 @@ def _survey(
                 console.print(f"recorded the survey to [bold]{escape(str(record))}[/]")
             try:
                 with _stop_between_records():
-                    result = _run(records, cfg, folder, f"mapping {source.name}")
+                    result = _run(
+                        records, cfg, folder, f"mapping {source.name}", checkpoints, resume
+                    )
             except RunError as err:
                 _stopped(err, out, strict)
     console.print(source.report.summary(), markup=False, soft_wrap=True)
@@ -293,7 +314,12 @@ def config_cmd(
 
 
 def _run(
-    records: Iterable[Record] | Source, cfg: AgrislamConfig, out: RunFolder, what: str
+    records: Iterable[Record] | Source,
+    cfg: AgrislamConfig,
+    out: RunFolder,
+    what: str,
+    checkpoints: Checkpoints,
+    resume: bool,
 ) -> RunResult:
     total = len(records) if isinstance(records, list) else None
     with Progress(
@@ -305,7 +331,22 @@ def _run(
         transient=True,
     ) as progress:
         task = progress.add_task(what, total=total)
-        return run_survey(records, WorldModel(cfg), out, lambda: _advance(progress, task))
+        result = run_survey(
+            records,
+            WorldModel(cfg),
+            out,
+            lambda: _advance(progress, task),
+            checkpoints=checkpoints,
+            resume=resume,
+        )
+    if resume:
+        at = (result.checkpoints or {}).get("resumed_at_record")
+        console.print(
+            f"resumed from the checkpoint at record {at}"
+            if at is not None
+            else "no checkpoint in --out to resume from: mapped from the first record"
+        )
+    return result
 
 
 def _record(records: list[Record], path: Path) -> None:

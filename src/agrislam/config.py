@@ -474,6 +474,25 @@ class OutputsConfig(_Strict):
     cell_m: float = Field(0.25, gt=0.0, le=100.0, description="ISOXML grid cell size, m")
 
 
+class CheckpointConfig(_Strict):
+    """Checkpoints of a run in its map.sqlite, for `agrislam run --resume`."""
+
+    every_frames: int = Field(
+        1000,
+        ge=0,
+        description="frames between checkpoints at least (0 = none); a checkpoint rebuilds the "
+        "back end's iSAM2 from its saved state, so the interval is part of the run's config "
+        "and a resumed run ends with the same map as one never stopped",
+    )
+    frames_per_mb: float = Field(
+        250.0,
+        ge=0.0,
+        description="and at least this many frames per MB of the saved state: saving "
+        "grows with the map, so checkpoints grow apart and keep costing the same share of "
+        "the run (250: about 2 %)",
+    )
+
+
 class AgrislamConfig(_Strict):
     """Root configuration of a run; every value has a default (`agrislam config --defaults`)."""
 
@@ -490,6 +509,7 @@ class AgrislamConfig(_Strict):
     maintenance: MaintenanceConfig = Field(default_factory=MaintenanceConfig)
     gnss: GnssConfig = Field(default_factory=GnssConfig)
     outputs: OutputsConfig = Field(default_factory=OutputsConfig)
+    checkpoint: CheckpointConfig = Field(default_factory=CheckpointConfig)
     label_map: dict[str, dict[str, str]] = Field(
         default_factory=dict,
         description="combined detector label -> attribute values, e.g. "

@@ -15,6 +15,7 @@ from typing import Any
 
 import numpy as np
 
+from agrislam.checkpoint import FORMAT, Checkpoints, RunState, adopt
 from agrislam.config import OutputsConfig
 from agrislam.evaluation import association_counts, evaluate, truth_trajectories, write_metrics
 from agrislam.growing import GrowingRows
@@ -30,7 +31,7 @@ from agrislam.sinks.report import write_report
 from agrislam.sinks.ros_map import write_map_mcap
 from agrislam.sinks.run_folder import RunFolder, RunFolderError
 from agrislam.sinks.shapefile import write_shapefile
-from agrislam.sinks.sqlite import save_map
+from agrislam.sinks.sqlite import save_map, write_checkpoint
 from agrislam.snapshot import MapSnapshot
 from agrislam.sources.base import Source, SourceError, SourceReport
 from agrislam.sources.sync import synchronise
@@ -104,6 +105,7 @@ class RunResult:
     source_report: SourceReport | None = None
     noise: dict[str, Any] | None = None  # the noise scales the run estimated (calibration.py)
     gnss: dict[str, int] = field(default_factory=dict)  # fixes used and rejected (issue 13)
+    checkpoints: dict[str, Any] | None = None  # resumed at which record, checkpoints taken
 
     @property
     def usable(self) -> bool:
@@ -145,6 +147,8 @@ def run_survey(
     progress: Callable[[], None] | None = None,
     *,
     force: bool = False,
+    checkpoints: Checkpoints | None = None,
+    resume: bool = False,
 ) -> RunResult:
     """Feed every record to the world model, then score the map and write the outputs.
 
@@ -153,12 +157,16 @@ def run_survey(
     before the first record is read (`sinks.run_folder`; `force` replaces an earlier run's
     outputs), or a `RunFolder` the caller holds. Whatever stops the run (a bad line in
     strict mode, an error of the core, Ctrl-C), the map of the records before it is
-    written and `RunError` raised with the result."""
+    written and `RunError` raised with the result.
+
+    `checkpoints`: save the run's state every so many frames (`agrislam.checkpoint`);
+    `resume`: first carry on from the checkpoint there (`ResumeError` if it is of another
+    input or config), skipping the records it had mapped."""
     if isinstance(out_dir, (str, Path)):
-        with RunFolder(out_dir, force=force) as folder:
-            result = _run(records, world, folder, progress)
+        with RunFolder(out_dir, force=force, resume=resume) as folder:
+            result = _run(records, world, folder, progress, checkpoints, resume)
     else:
-        result = _run(records, world, out_dir, progress)
+        result = _run(records, world, out_dir, progress, checkpoints, resume)
     if result.error is not None:
         raise RunError(result) from result.error
     return result
@@ -169,34 +177,54 @@ def _run(
     world: WorldModel,
     folder: RunFolder | None,
     progress: Callable[[], None] | None,
+    checkpoints: Checkpoints | None = None,
+    resume: bool = False,
 ) -> RunResult:
     source = records if isinstance(records, Source) else None
     stream = source.records() if source is not None else records
-    truth, issues, counts = Truth(), Counter[str](), Counter[str]()
+    saved = checkpoints.resume() if checkpoints is not None and resume else None
+    state = _carry_on(world, saved) if saved is not None else RunState(world, Truth())
+    resumed_at, issues = state.position, Counter[str]()
     synced = synchronise(stream)
     start = time.perf_counter()
-    n_frames, error = 0, None
+    error = None
     try:
-        for record in _split_labels(synced, world, issues):
-            n_frames += _feed(record, world, truth)
-            counts[type(record).__name__] += 1
+        for position, record in enumerate(_split_labels(synced, world, issues), 1):
+            if position > state.position:  # else mapped before the checkpoint resumed
+                frame = _feed(record, world, state.truth)
+                state.n_frames += frame
+                state.counts[type(record).__name__] += 1
+                state.position = position
+                if frame and checkpoints is not None and checkpoints.due(state.n_frames):
+                    state = _carry_on(world, checkpoints.take(state))
             if progress is not None:
                 progress()
         world.finish()
     except (Exception, KeyboardInterrupt) as err:  # the map so far is still written
         error = err
     wall = time.perf_counter() - start
+    truth, counts, n_frames = state.truth, state.counts, state.n_frames
     for frame, reason in synced.unplaced:
         issues[f"frame of {frame.robot!r} not placed: {reason}"] += 1
     issues.update(world.issues)
+    issues.update(checkpoints.issues if checkpoints is not None else {})
     result = RunResult(None, None, wall, n_frames, [], dict(issues), error, dict(counts))
     result.source_report = source.report if source is not None else None
     result.noise = world.noise.report()
     result.gnss = world.gnss.summary()
+    if checkpoints is not None:
+        result.checkpoints = {
+            "resumed_at_record": resumed_at if saved is not None else None,
+            "taken": checkpoints.taken,
+            "seconds": checkpoints.seconds,
+        }
     result.snapshot = _snapshot(world, result)
     if result.snapshot is not None and truth.present:
         result.metrics = _score(result, world, truth)
     if folder is not None and (counts or error is None):
+        kept = None  # a stopped run keeps its last checkpoint in map.sqlite, to resume
+        if checkpoints is not None and error is not None:
+            kept = checkpoints.last or {"format": FORMAT}
         result.outputs, result.output_errors = write_outputs(
             result.snapshot,
             folder.path,
@@ -204,8 +232,16 @@ def _run(
             truth,
             _summary(result),
             world.config.outputs,
+            kept,
         )
     return result
+
+
+def _carry_on(world: WorldModel, state: RunState) -> RunState:
+    """The run goes on from `state` (a checkpoint read back), in the caller's world."""
+    adopt(world, state.world)
+    state.world = world
+    return state
 
 
 def _feed(record: Record, world: WorldModel, truth: Truth) -> int:
@@ -267,6 +303,7 @@ def _summary(result: RunResult) -> dict[str, Any]:
             "records": result.records,
             "issues": result.issues,
             "noise_calibration": result.noise,
+            "checkpoints": result.checkpoints,
         },
         "input": report.as_dict() if report is not None else None,
         "skipped": skipped_table(report),
@@ -328,6 +365,12 @@ def geo_writers(
     return [(GEO_FILES[f], write[f]) for f in dict.fromkeys(formats)]
 
 
+def _save_map(snapshot: MapSnapshot, path: Path, checkpoint: dict[str, bytes] | None) -> None:
+    save_map(snapshot, path)
+    if checkpoint is not None:
+        write_checkpoint(path, checkpoint)
+
+
 def write_outputs(
     snapshot: MapSnapshot | None,
     out_dir: Path,
@@ -335,12 +378,14 @@ def write_outputs(
     truth: Truth,
     summary: dict[str, Any] | None = None,
     outputs: OutputsConfig | None = None,
+    checkpoint: dict[str, bytes] | None = None,
 ) -> tuple[list[Path], dict[str, str]]:
     """The files of DESIGN.md "Outputs of a run", each written atomically (a killed run
     leaves whole files only) and each on its own: one that fails is reported in the second
     value (name -> why) and the others are still written. `summary`: the run's own
     section of metrics.json and its skipped input (`skipped.csv`); metrics.json is written
-    last, so it marks a run whose outputs are all there."""
+    last, so it marks a run whose outputs are all there. `checkpoint`: entries of the
+    run's last checkpoint, kept in map.sqlite (a stopped run, to resume)."""
     out_dir.mkdir(parents=True, exist_ok=True)
     summary = dict(summary or {})
     skipped = summary.pop("skipped", None)
@@ -349,7 +394,7 @@ def write_outputs(
         writers += [
             ("objects.csv", lambda p: write_objects_csv(snapshot, p)),
             ("trajectory.csv", lambda p: write_trajectory_csv(snapshot, p)),
-            ("map.sqlite", lambda p: save_map(snapshot, p)),
+            ("map.sqlite", lambda p: _save_map(snapshot, p, checkpoint)),
         ]
     if skipped is not None:
         writers.append(("skipped.csv", lambda p: write_table(skipped, p)))

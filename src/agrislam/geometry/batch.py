@@ -65,6 +65,22 @@ class BatchBackend(BackendBase):
         self._cov_cache: dict[int, np.ndarray] = {}
         self._dirty = False
 
+    # -------------------------------------------------------- pickle (checkpoints)
+    def __getstate__(self) -> dict:
+        """The state to pickle: the graph and the solution in GTSAM's serialisation (exact
+        to the last bit), the marginals dropped (they are computed again when asked)."""
+        state = self.__dict__.copy()
+        state.update(_factors=self._factors.serialize(), _values=self._values.serialize())
+        state.update(_marginals=None, _cov_cache={})
+        return state
+
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update(state)
+        self._factors = gtsam.NonlinearFactorGraph()
+        self._factors.deserialize(state["_factors"])
+        self._values = gtsam.Values()
+        self._values.deserialize(state["_values"])
+
     # ------------------------------------------------------------ solver hooks
     def _insert(self, key: int, value: np.ndarray) -> None:
         self._guess[key] = np.asarray(value, dtype=float)

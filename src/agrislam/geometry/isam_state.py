@@ -13,6 +13,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
+from typing import TypeVar
 
 import gtsam
 import numpy as np
@@ -20,6 +21,8 @@ import numpy as np
 from agrislam.geometry.batch import insert_value
 from agrislam.geometry.graph import POSE
 from agrislam.geometry.noise import gaussian, relative_to_range_bearing
+
+Serialisable = TypeVar("Serialisable", gtsam.NonlinearFactorGraph, gtsam.Values)
 
 
 @dataclass(slots=True)
@@ -64,6 +67,30 @@ class PendingUpdate:
         self._values = gtsam.Values()
         self._guess: dict[int, np.ndarray] = {}  # the same values, as arrays
         self._removals: list[int] = []
+
+    def __getstate__(self) -> dict:
+        """To pickle: the factors in GTSAM's serialisation (None where dropped), the new
+        values only as arrays (`_guess` holds the same)."""
+        state = self.__dict__.copy()
+        kept = [n for n, p in enumerate(self._factors) if p is not None]
+        graph = gtsam.NonlinearFactorGraph()
+        for n in kept:
+            graph.push_back(self._factors[n][0])
+        entries = [self._factors[n][1] for n in kept]
+        state["_factors"] = (graph.serialize(), kept, entries, len(self._factors))
+        del state["_values"]
+        return state
+
+    def __setstate__(self, state: dict) -> None:
+        text, kept, entries, n = state.pop("_factors")
+        self.__dict__.update(state)
+        graph = deserialised(gtsam.NonlinearFactorGraph(), text)
+        self._factors = [None] * n
+        for i, (at, entry) in enumerate(zip(kept, entries, strict=True)):
+            self._factors[at] = (graph.at(i), entry)
+        self._values = gtsam.Values()
+        for key, value in self._guess.items():
+            insert_value(self._values, key, value)
 
     # ------------------------------------------------------------------- nodes
     def enter(self, key: int, value: np.ndarray) -> None:
@@ -185,6 +212,10 @@ class SlotTable:
             if entry.fid is not None:
                 self._slot_of.pop(entry.fid, None)
         return dropped
+
+    def ordered(self) -> list[tuple[int, Entry]]:
+        """Every live slot and its entry, by slot."""
+        return sorted(self._entries.items())
 
     def __len__(self) -> int:
         return len(self._entries)
@@ -308,3 +339,26 @@ def per_distinct(keys: np.ndarray, f: Callable[[int], np.ndarray]) -> list[np.nd
     listed = keys.tolist()
     once = {k: f(k) for k in dict.fromkeys(listed)}
     return [once[k] for k in listed]
+
+
+def deserialised(into: Serialisable, text: str) -> Serialisable:
+    """`into` filled from GTSAM's serialisation `text` (what `.serialize()` gave)."""
+    into.deserialize(text)
+    return into
+
+
+def serialised_isam2(isam: gtsam.ISAM2, slots: list[int]) -> tuple[str, str]:
+    """iSAM2's factors in `slots` (in that order) and its linearisation point, in GTSAM's
+    serialisation (17 significant digits: every double comes back to the last bit)."""
+    factors, graph = isam.getFactorsUnsafe(), gtsam.NonlinearFactorGraph()
+    for slot in slots:
+        graph.push_back(factors.at(slot))
+    return graph.serialize(), isam.getLinearizationPoint().serialize()
+
+
+def restore_isam2(isam: gtsam.ISAM2, saved: tuple[str, str]) -> None:
+    """A new iSAM2 given what `serialised_isam2` kept: its factors take slots 0, 1, ..."""
+    factors, point = saved
+    isam.update(
+        deserialised(gtsam.NonlinearFactorGraph(), factors), deserialised(gtsam.Values(), point)
+    )

@@ -6,7 +6,8 @@
   lock of a process that died (kill -9) is free again and the next run takes it over;
 - a folder that holds the outputs of an earlier run (complete or not) is refused unless
   the run is told to replace them (`force`): then every one of the old run's files goes
-  first, so no stale file of it stays beside the new ones;
+  first, so no stale file of it stays beside the new ones; a run that resumes the
+  earlier one (`resume`) keeps them: its map.sqlite holds the checkpoint;
 - temporary files a killed run left behind (`sinks.atomic`) are removed."""
 
 from __future__ import annotations
@@ -33,6 +34,7 @@ OUTPUT_NAMES = (
     "objects.csv",
     "trajectory.csv",
     "map.sqlite",
+    "map.sqlite-journal",  # a checkpoint's transaction cut by a kill (rolled back on open)
     "skipped.csv",
     "map.geojson",
     "map.gpkg",
@@ -51,11 +53,13 @@ class RunFolderError(ValueError):
 
 class RunFolder:
     """The output folder of one run: `open()` (or `with`) checks and locks it, `close()`
-    unlocks it. `force`: replace the outputs of an earlier run found in it."""
+    unlocks it. `force`: replace the outputs of an earlier run found in it; `resume`: carry
+    on the earlier run, its outputs kept (each is replaced when the run ends)."""
 
-    def __init__(self, path: str | Path, *, force: bool = False) -> None:
+    def __init__(self, path: str | Path, *, force: bool = False, resume: bool = False) -> None:
         self.path = Path(path)
         self.force = force
+        self.resume = resume
         self.created = False
         self.replaced: list[str] = []
         self._fd: int | None = None
@@ -155,7 +159,7 @@ class RunFolder:
             if is_temporary(entry.name):
                 remove(entry)
         old = self.outputs
-        if not old:
+        if not old or self.resume:
             return
         if not self.force:
             raise RunFolderError(

@@ -315,3 +315,44 @@ def _array_row(item: tuple[str, np.ndarray]) -> tuple[str, str, str, bytes]:
 
 def _anchor_dict(anchor: Anchor) -> dict[str, float]:
     return {"lat": anchor.lat, "lon": anchor.lon, "h": anchor.h, "yaw_deg": anchor.yaw_deg}
+
+
+# ------------------------------------------------------------------------- checkpoints
+
+CHECKPOINT_TABLE = "CREATE TABLE checkpoint (key TEXT PRIMARY KEY, value BLOB NOT NULL)"
+
+
+def write_checkpoint(
+    path: str | Path, entries: dict[str, bytes], snapshot: MapSnapshot | None = None
+) -> None:
+    """A run in progress: its map so far (`snapshot`, replacing the file's tables) and what
+    resumes it (`entries`, the `checkpoint` table), in one transaction of the file at
+    `path` with a rollback journal, so a process killed while it writes leaves the previous
+    checkpoint whole (SQLite rolls the journal back when the file is next opened)."""
+    with closing(sqlite3.connect(path, isolation_level=None)) as db:
+        db.execute("PRAGMA journal_mode = DELETE")
+        db.execute("PRAGMA synchronous = FULL")
+        db.execute("BEGIN IMMEDIATE")
+        old = db.execute("SELECT name FROM sqlite_master WHERE type = 'table'").fetchall()
+        for (name,) in old:
+            if snapshot is not None or name == "checkpoint":
+                db.execute(f'DROP TABLE "{name}"')
+        if snapshot is not None:
+            for statement in TABLES.split(";"):
+                if statement.strip():
+                    db.execute(statement)
+            _write(db, snapshot)
+        db.execute(CHECKPOINT_TABLE)
+        db.executemany("INSERT INTO checkpoint VALUES (?, ?)", entries.items())
+        db.execute("COMMIT")
+
+
+def read_checkpoint(path: str | Path) -> dict[str, bytes] | None:
+    """The `checkpoint` table of `path`: None for a map without one (a finished run's),
+    empty for a file without tables (its first checkpoint was cut). A checkpoint cut by a
+    killed write is rolled back to the one before it first."""
+    with closing(sqlite3.connect(path, isolation_level=None)) as db:
+        tables = {n for (n,) in db.execute("SELECT name FROM sqlite_master WHERE type = 'table'")}
+        if "checkpoint" not in tables:
+            return None if tables else {}
+        return {k: bytes(v) for k, v in db.execute("SELECT key, value FROM checkpoint")}
