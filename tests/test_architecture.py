@@ -22,6 +22,7 @@ CORE = [
     "association",
     "objects",
     "maintenance",
+    "prior",
     "world",
 ]
 # adapters: what each must never import (besides the CLI and the pipeline, which none may)

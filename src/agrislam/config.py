@@ -465,6 +465,53 @@ class MaintenanceConfig(_Strict):
     prune_grace_s: float = Field(20.0, ge=0.0, description="s unseen before pruning")
 
 
+class SeasonConfig(_Strict):
+    """A survey that continues a saved map (issue 15): re-localisation in it and the
+    changes found against it."""
+
+    cluster_radius: float = Field(
+        0.12, gt=0.0, description="m: detections of the first frames closer than this are one plant"
+    )
+    inlier_radius: float = Field(
+        0.1, gt=0.0, description="m: a first-frames plant this near a saved one matches it"
+    )
+    score_sigma: float = Field(
+        0.04,
+        gt=0.0,
+        description="m: the Gaussian kernel a match scores with (plant spacing "
+        "jitter is a few cm, so a hypothesis shifted by one plant scores far lower)",
+    )
+    min_landmarks: int = Field(12, ge=3, description="first-frames plants before a first try")
+    min_inlier_fraction: float = Field(
+        0.6, gt=0.0, le=1.0, description="share of the first-frames plants the map must explain"
+    )
+    max_ambiguity: float = Field(
+        0.7,
+        gt=0.0,
+        lt=1.0,
+        description="refuse when the second-best distinct hypothesis scores above this share "
+        "of the best (periodic rows)",
+    )
+    attempt_every_s: float = Field(1.0, gt=0.0, description="s of driving between two tries")
+    give_up_after_s: float = Field(
+        300.0, gt=0.0, description="s of driving without a fix: map the survey as a new field"
+    )
+    start_tolerance: tuple[float, float] = Field(
+        (0.5, 0.2), description="(m, rad) a given start pose may differ from the fix"
+    )
+    gone_prior: float = Field(
+        0.5, gt=0.0, lt=1.0, description="P(gone) of a plant before it is looked for"
+    )
+    gone_threshold: float = Field(
+        0.95, gt=0.5, lt=1.0, description="P(gone) from which a plant is marked gone"
+    )
+    view_margin: float = Field(
+        0.2,
+        ge=0.0,
+        description="m a plant must be inside the camera's seen area to count as looked at",
+    )
+
+
 class AgrislamConfig(_Strict):
     """Root configuration of a run; every value has a default (`agrislam config --defaults`)."""
 
@@ -479,6 +526,7 @@ class AgrislamConfig(_Strict):
     slam: SlamConfig = Field(default_factory=SlamConfig)
     rows: RowsConfig = Field(default_factory=RowsConfig)
     maintenance: MaintenanceConfig = Field(default_factory=MaintenanceConfig)
+    season: SeasonConfig = Field(default_factory=SeasonConfig)
     label_map: dict[str, dict[str, str]] = Field(
         default_factory=dict,
         description="combined detector label -> attribute values, e.g. "

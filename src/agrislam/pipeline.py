@@ -18,6 +18,8 @@ import numpy as np
 from agrislam.evaluation import evaluate, truth_trajectories, write_metrics
 from agrislam.perception.label_map import LabelMap
 from agrislam.records import Detections, Meta, Record, TruthObject, TruthPose
+from agrislam.season import SeasonRun
+from agrislam.season_outputs import season_outputs
 from agrislam.sinks.atomic import atomic_path
 from agrislam.sinks.csv import write_objects_csv, write_table, write_trajectory_csv
 from agrislam.sinks.foxglove import write_foxglove_mcap
@@ -70,6 +72,7 @@ class RunResult:
     records: dict[str, int] = field(default_factory=dict)
     output_errors: dict[str, str] = field(default_factory=dict)
     source_report: SourceReport | None = None
+    season: dict[str, Any] | None = None  # a survey that continued a saved map (issue 15)
 
     @property
     def usable(self) -> bool:
@@ -111,6 +114,7 @@ def run_survey(
     progress: Callable[[], None] | None = None,
     *,
     force: bool = False,
+    season: SeasonRun | None = None,
 ) -> RunResult:
     """Feed every record to the world model, then score the map and write the outputs.
 
@@ -122,9 +126,9 @@ def run_survey(
     written and `RunError` raised with the result."""
     if isinstance(out_dir, (str, Path)):
         with RunFolder(out_dir, force=force) as folder:
-            result = _run(records, world, folder, progress)
+            result = _run(records, world, folder, progress, season)
     else:
-        result = _run(records, world, out_dir, progress)
+        result = _run(records, world, out_dir, progress, season)
     if result.error is not None:
         raise RunError(result) from result.error
     return result
@@ -135,6 +139,7 @@ def _run(
     world: WorldModel,
     folder: RunFolder | None,
     progress: Callable[[], None] | None,
+    season: SeasonRun | None = None,
 ) -> RunResult:
     source = records if isinstance(records, Source) else None
     stream = source.records() if source is not None else records
@@ -143,12 +148,15 @@ def _run(
     start = time.perf_counter()
     n_frames, error = 0, None
     try:
-        for record in _split_labels(synced, world, issues):
+        gated = synced if season is None else season.gate(synced, world)
+        for record in _split_labels(gated, world, issues):
             n_frames += _feed(record, world, truth)
             counts[type(record).__name__] += 1
             if progress is not None:
                 progress()
         world.finish()
+        if season is not None:
+            season.finish(world)
     except (Exception, KeyboardInterrupt) as err:  # the map so far is still written
         error = err
     wall = time.perf_counter() - start
@@ -160,9 +168,14 @@ def _run(
     result.snapshot = _snapshot(world, result)
     if result.snapshot is not None and truth.present:
         result.metrics = _score(result, world, truth)
+    summary = _summary(result)
+    if season is not None:
+        summary["season"] = season.summary()
+        result.season = summary["season"]
     if folder is not None and (counts or error is None):
+        extra = season_outputs(season, world, result.snapshot)
         result.outputs, result.output_errors = write_outputs(
-            result.snapshot, folder.path, result.metrics, truth, _summary(result)
+            result.snapshot, folder.path, result.metrics, truth, summary, extra
         )
     return result
 
@@ -265,6 +278,7 @@ def write_outputs(
     metrics: dict[str, Any] | None,
     truth: Truth,
     summary: dict[str, Any] | None = None,
+    extra: list[tuple[str, Callable[[Path], Any]]] | None = None,
 ) -> tuple[list[Path], dict[str, str]]:
     """The files of DESIGN.md "Outputs of a run", each written atomically (a killed run
     leaves whole files only) and each on its own: one that fails is reported in the second
@@ -294,6 +308,7 @@ def write_outputs(
         writers.append(
             ("report.png", lambda p: write_report(snapshot, p, metrics=metrics, truth=trajectories))
         )
+    writers = _with_extra(writers, extra or [])
     written: list[Path] = []
     failed: dict[str, str] = {}
     for name, write in writers:
@@ -311,3 +326,19 @@ def write_outputs(
             write_metrics({**(metrics or {}), **summary, "run": run}, tmp)
         written.append(out_dir / "metrics.json")
     return written, failed
+
+
+def _with_extra(
+    writers: list[tuple[str, Callable[[Path], Any]]], extra: list[tuple[str, Callable[[Path], Any]]]
+) -> list[tuple[str, Callable[[Path], Any]]]:
+    """The writers with `extra` ones: one of the same name writes after the first into the
+    same temporary file (map.sqlite gains the season's tables in the same atomic write)."""
+    out = list(writers)
+    for name, write in extra:
+        at = next((k for k, (n, _) in enumerate(out) if n == name), None)
+        if at is None:
+            out.append((name, write))
+        else:
+            first = out[at][1]
+            out[at] = (name, lambda p, first=first, write=write: (first(p), write(p)))
+    return out
