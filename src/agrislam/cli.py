@@ -109,9 +109,19 @@ def run(
         bool, typer.Option("--strict/--lenient", help="Stop at the first bad line, or skip it.")
     ] = False,
     force: ForceOption = False,
+    prior_map: Annotated[
+        Path | None,
+        typer.Option(
+            "--map",
+            exists=True,
+            dir_okay=False,
+            help="Continue this saved map.sqlite: re-localise in it, keep its plants' ids, "
+            "list what changed (issue 15).",
+        ),
+    ] = None,
 ) -> None:
     """Map a recorded (or simulated) survey."""
-    _survey(log, config, out, strict=strict, force=force)
+    _survey(log, config, out, strict=strict, force=force, prior_map=prior_map)
 
 
 def _survey(
@@ -122,6 +132,7 @@ def _survey(
     strict: bool = False,
     record: Path | None = None,
     force: bool = False,
+    prior_map: Path | None = None,
 ) -> None:
     """Open the source, run the survey, print the source's report and the run's summary.
     The config file's ``bag:`` and ``sim:`` sections go to the source that reads them.
@@ -142,7 +153,7 @@ def _survey(
                 console.print(f"recorded the survey to [bold]{escape(str(record))}[/]")
             try:
                 with _stop_between_records():
-                    result = _run(records, cfg, folder, f"mapping {source.name}")
+                    result = _run(records, cfg, folder, f"mapping {source.name}", prior_map)
             except RunError as err:
                 _stopped(err, out, strict)
     console.print(source.report.summary(), markup=False, soft_wrap=True)
@@ -280,7 +291,11 @@ def config_cmd(
 
 
 def _run(
-    records: Iterable[Record] | Source, cfg: AgrislamConfig, out: RunFolder, what: str
+    records: Iterable[Record] | Source,
+    cfg: AgrislamConfig,
+    out: RunFolder,
+    what: str,
+    prior_map: Path | None = None,
 ) -> RunResult:
     total = len(records) if isinstance(records, list) else None
     with Progress(
@@ -292,7 +307,14 @@ def _run(
         transient=True,
     ) as progress:
         task = progress.add_task(what, total=total)
-        return run_survey(records, WorldModel(cfg), out, lambda: _advance(progress, task))
+        season = None
+        if prior_map is not None:
+            from agrislam.season_outputs import load_season
+
+            season = load_season(prior_map, cfg)
+        return run_survey(
+            records, WorldModel(cfg), out, lambda: _advance(progress, task), season=season
+        )
 
 
 def _record(records: list[Record], path: Path) -> None:

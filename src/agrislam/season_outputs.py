@@ -11,10 +11,13 @@ from typing import Any
 
 import numpy as np
 
+from agrislam.config import AgrislamConfig
+from agrislam.prior.map import PriorMap
 from agrislam.season import SeasonRun
 from agrislam.sinks.csv import write_table
-from agrislam.sinks.history import History, plant_rows, write_history
+from agrislam.sinks.history import History, plant_rows, read_history, write_history
 from agrislam.sinks.season_figures import write_season_figure
+from agrislam.sinks.sqlite import load_map
 from agrislam.snapshot import MapSnapshot
 from agrislam.world import WorldModel
 
@@ -101,3 +104,17 @@ def season_outputs(
     if len(history.surveys) > 1:
         out.append(("season.png", lambda p: write_season_figure(history, p)))
     return out
+
+
+def load_season(path: str | Path, config: AgrislamConfig) -> SeasonRun:
+    """A saved map.sqlite as the prior of the next survey, with its history. A map without
+    history (written before issue 15) has no absolute time: its beliefs are taken as of
+    the new survey's start."""
+    history = read_history(path)
+    t_abs = history.t_abs()
+    prior = PriorMap.from_snapshot(
+        load_map(path), np.nan if t_abs is None else t_abs, history.next_survey or 1
+    )
+    season = SeasonRun(prior, config)
+    season.history = history
+    return season

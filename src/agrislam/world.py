@@ -167,7 +167,9 @@ class WorldModel:
         if prior.schema is not None and meta.schema is not None and prior.schema != meta.schema:
             raise ValueError("the survey's schema differs from the saved map's")
         self.schema = self.schema or prior.schema
-        belief_time = prior.t_abs - (self.survey_start or 0.0)
+        # a map without history has no time: its beliefs are as of this survey's start
+        known = np.isfinite(prior.t_abs)
+        belief_time = prior.t_abs - (self.survey_start or 0.0) if known else 0.0
         self.objects = ObjectTable(prior.belief_table(self.config.semantics, belief_time))
         self.objects.on_retire(self.index.forget)
         self.objects.young[:] = False

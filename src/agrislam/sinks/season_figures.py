@@ -12,19 +12,19 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
-
 SAMPLE = 12  # plants whose growth curves are drawn
 
 
 def _growth_attribute(history) -> str | None:
-    """The continuous attribute of the beliefs (mean, var), if any; else a discrete one."""
-    for row in history.rows:
-        beliefs = json.loads(row[11])
-        for name, value in beliefs.items():
-            if len(value) == 2 and not np.isclose(sum(value), 1.0):
-                return name
-        return next(iter(beliefs), None)
-    return None
+    """A continuous attribute of the beliefs (mean, var) if any, else the discrete one
+    with the most values (a size)."""
+    if not history.rows:
+        return None
+    beliefs = json.loads(history.rows[0][11])
+    continuous = [n for n, v in beliefs.items() if len(v) == 2 and not np.isclose(sum(v), 1.0)]
+    if continuous:
+        return continuous[0]
+    return max(beliefs, key=lambda n: len(beliefs[n]), default=None)
 
 
 def _value(beliefs: dict, name: str) -> float:
