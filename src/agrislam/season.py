@@ -24,6 +24,9 @@ from agrislam.snapshot import STATUS_GONE
 from agrislam.world import WorldModel
 
 
+START_SIGMA_FLOOR = np.array([0.05, 0.05, 0.02])  # m, m, rad
+
+
 @dataclass
 class _Frames:
     """One robot's first frames by dead reckoning: detection positions and attributes."""
@@ -153,7 +156,8 @@ class SeasonRun:
                 self.start_check += ": refused, not merged"
                 return meta
             return self._merge(meta, world)
-        sigma = np.sqrt(np.diag(fix.cov)) * 3.0
+        # the fix's own uncertainty, widened and floored: a start prior, not a clamp
+        sigma = np.maximum(3.0 * np.sqrt(np.diag(fix.cov)), START_SIGMA_FLOOR)
         robots = {**meta.robots, first: RobotStart(pose=start, sigma=sigma)}
         return self._merge(dataclasses.replace(meta, robots=robots), world)
 

@@ -115,22 +115,35 @@ class Relocaliser:
             return Fix(None, "not localised yet: no saved plants at the first plants' distances", n)
         hyps = self._prescored(hyps, local_xy)
         refined = [self._refine(h, local_xy, local_ids) for h in hyps]
-        scores = np.array([r[1] for r in refined])
+        # the kernel's width is the best fit's own residual: a hypothesis shifted by one
+        # plant has residuals of the spacing jitter, the right one of the detection noise
+        first = max(range(len(refined)), key=lambda k: _score(refined[k][1], cfg.score_sigma))
+        sigma = float(
+            np.clip(
+                _rms(refined[first][1], cfg.inlier_radius), 0.25 * cfg.score_sigma, cfg.score_sigma
+            )
+        )
+        scores = np.array([_score(d, sigma) for _, d in refined])
         order = np.argsort(-scores)
-        best_t, best, inliers = refined[order[0]]
+        best_t, d_best = refined[order[0]]
+        best, inliers = float(scores[order[0]]), int((d_best < cfg.inlier_radius).sum())
         second = 0.0
         for i in order[1:]:
             if _distinct(refined[i][0], best_t, local_xy):
-                second = refined[i][1]
+                second = float(scores[i])
                 break
         fix = dict(n_plants=n, n_inliers=inliers, score=best, second_score=second)
+        if _rms(d_best, cfg.inlier_radius) > cfg.score_sigma:
+            why = f"the best place fits only to {_rms(d_best, cfg.inlier_radius):.3f} m"
+            return Fix(None, f"not localised yet: {why}", **fix)
         if inliers < cfg.min_landmarks or inliers < cfg.min_inlier_fraction * n:
             why = f"{inliers} of {n} plants match the best place"
             return Fix(None, f"not localised yet: {why}", **fix)
         if second > cfg.max_ambiguity * best:
             why = f"two places fit (scores {best:.1f} and {second:.1f})"
             return Fix(None, f"not localised yet: {why}", **fix)
-        cov = np.diag([cfg.score_sigma**2 / inliers] * 2 + [cfg.score_sigma**2 / (inliers * 4.0)])
+        spread = np.mean(np.sum((local_xy - local_xy.mean(axis=0)) ** 2, axis=1))
+        cov = np.diag([sigma**2 / inliers] * 2 + [sigma**2 / (inliers * max(spread, 1e-6))])
         return Fix(best_t, "localised", cov=cov, **fix)
 
     # ------------------------------------------------------------------ the steps
@@ -165,8 +178,8 @@ class Relocaliser:
 
     def _refine(
         self, transform: np.ndarray, local_xy: np.ndarray, local_ids: np.ndarray
-    ) -> tuple[np.ndarray, float, int]:
-        """Two rounds of matching and refitting; the kernel score and inlier count."""
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Two rounds of matching and refitting; the matched plants' residuals (m)."""
         cfg = self.cfg
         for _ in range(2):
             moved = _apply(transform[None], local_xy)[0]
@@ -176,12 +189,10 @@ class Relocaliser:
                 ok = self.compatible(local_ids[match], j[match])
                 match[np.flatnonzero(match)[~ok]] = False
             if match.sum() < 3:
-                return transform, 0.0, 0
+                return transform, np.empty(0)
             transform = rigid_fit(local_xy[match], self.map_xy[j[match]])
         moved = _apply(transform[None], local_xy)[0]
-        d = np.linalg.norm(moved[match] - self.map_xy[j[match]], axis=1)
-        score = float(np.exp(-0.5 * (d / cfg.score_sigma) ** 2).sum())
-        return transform, score, int((d < cfg.inlier_radius).sum())
+        return transform, np.linalg.norm(moved[match] - self.map_xy[j[match]], axis=1)
 
 
 def _base_pairs(local_xy: np.ndarray, counts: np.ndarray) -> list[tuple[int, int]]:
@@ -213,3 +224,14 @@ def _distinct(a: np.ndarray, b: np.ndarray, local_xy: np.ndarray) -> bool:
     )
     turn = abs(np.remainder(a[2] - b[2] + np.pi, 2 * np.pi) - np.pi)
     return bool(shift > DISTINCT[0] or turn > DISTINCT[1])
+
+
+def _score(residuals: np.ndarray, sigma: float) -> float:
+    """Gaussian kernel score of a hypothesis' residuals."""
+    return float(np.exp(-0.5 * (residuals / sigma) ** 2).sum())
+
+
+def _rms(residuals: np.ndarray, radius: float) -> float:
+    """RMS of the residuals within the inlier radius (inf with fewer than 3)."""
+    inside = residuals[residuals < radius]
+    return float(np.sqrt(np.mean(inside**2))) if len(inside) >= 3 else np.inf
