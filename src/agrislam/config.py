@@ -502,6 +502,13 @@ class SeasonConfig(_Strict):
     gone_prior: float = Field(
         0.5, gt=0.0, lt=1.0, description="P(gone) of a plant before it is looked for"
     )
+    stray_rate: float = Field(
+        0.05,
+        gt=0.0,
+        lt=0.5,
+        description="chance per frame in view that a detection of something else is "
+        "associated to a plant that is not there (clutter, a neighbour)",
+    )
     gone_threshold: float = Field(
         0.95, gt=0.5, lt=1.0, description="P(gone) from which a plant is marked gone"
     )

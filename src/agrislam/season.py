@@ -20,9 +20,8 @@ from agrislam.prior.changes import Changes, ViewArea, find_changes
 from agrislam.prior.map import PriorMap
 from agrislam.prior.relocalise import Fix, Relocaliser, cluster
 from agrislam.records import Detections, DiscreteMeasurement, Meta, Odometry, Record, RobotStart
-from agrislam.snapshot import STATUS_GONE
+from agrislam.snapshot import STATUS_ACTIVE, STATUS_GONE
 from agrislam.world import WorldModel
-
 
 START_SIGMA_FLOOR = np.array([0.05, 0.05, 0.02])  # m, m, rad
 
@@ -182,29 +181,16 @@ class SeasonRun:
         if not self.merged:
             return None
         prior, backend = self.prior, world.backend
-        active = world.objects.status[prior.ids] == 0
-        resolved = world.resolve(prior.ids)
-        entered = np.array([int(i) in backend.entered for i in resolved.tolist()])
-        seen_again = entered & (world.objects.n_frames[resolved] > 0)
-        ids = prior.ids[active | seen_again]
-        xy = backend.object_positions(world.resolve(ids))
+        ids = prior.ids[world.objects.status[prior.ids] == STATUS_ACTIVE]  # not merged away
+        xy = backend.object_positions(ids)
         poses = np.vstack(
-            [world.backend.trajectory(r)[1] for r in world.robots if world.robots[r].started]
+            [backend.trajectory(r)[1] for r, chain in world.robots.items() if chain.started]
         )
         area = ViewArea.learned(np.array(self._robot_xy).reshape(-1, 2), self.cfg.view_margin)
-        keep = active | seen_again
         new = world.active_ids()
         new = new[new > prior.ids.max()]
-        self.changes = find_changes(
-            ids,
-            xy,
-            seen_again[keep],
-            world.objects.n_frames[resolved][keep],
-            new,
-            poses,
-            area,
-            self.cfg,
-        )
+        frames = world.objects.n_frames[ids]
+        self.changes = find_changes(ids, xy, frames, new, poses, area, self.cfg)
         if len(self.changes.gone):  # not deleted: out of the map, in its history as gone
             world.objects.retire(self.changes.gone, STATUS_GONE)
         return self.changes

@@ -4,8 +4,13 @@ a belief of being gone; plants the survey started are new.
 
 Where the camera looked is learned from the survey itself: the robot-frame area its
 detections filled (range and bearing quantiles), shrunk by a margin. A saved plant inside
-it at k frames and never detected is gone with P = p0 / (p0 + (1 - p0) (1 - p_d)^k), p_d the
-share of in-view frames in which the plants that were seen again were detected.
+it at k frames and detected in n of them is gone with the binomial posterior
+
+    P(gone) = p0 e^n (1 - e)^(k - n) / (p0 e^n (1 - e)^(k - n) + (1 - p0) p_d^n (1 - p_d)^(k - n)),
+
+p_d the share of in-view frames in which the plants clearly there (n >= 2) were detected,
+e the rate of stray detections associated to a plant that is not there (config): a
+removed plant that caught one detection of a neighbour or of clutter is still gone.
 """
 
 from __future__ import annotations
@@ -75,26 +80,30 @@ class Changes:
 def find_changes(
     saved_ids: np.ndarray,
     saved_xy: np.ndarray,
-    seen_again: np.ndarray,
     frames_seen: np.ndarray,
     new_ids: np.ndarray,
     poses: np.ndarray,
     area: ViewArea,
     cfg: SeasonConfig,
 ) -> Changes:
-    """Classify the saved plants (ids, map positions at the end of the survey) by whether
-    they were `seen_again` (bool) in `frames_seen` frames, given the frame poses."""
-    views = area.views(poses, saved_xy)
-    looked = seen_again & (views > 0)
-    p_d = float(np.clip(frames_seen[looked].sum() / max(views[looked].sum(), 1), 0.05, 0.99))
-    p0 = cfg.gone_prior
-    p_gone = p0 / (p0 + (1 - p0) * (1 - p_d) ** views)
-    gone = ~seen_again & (p_gone >= cfg.gone_threshold)
+    """Classify the saved plants (ids, map positions at the end of the survey), each seen
+    in `frames_seen` frames of this survey, given the frame poses."""
+    views = np.maximum(area.views(poses, saved_xy), frames_seen)
+    there = frames_seen >= 2
+    p_d = float(np.clip(frames_seen[there].sum() / max(views[there].sum(), 1), 0.05, 0.99))
+    p0, e = cfg.gone_prior, cfg.stray_rate
+    n, miss = frames_seen, views - frames_seen
+    # the binomial posterior of the module docstring, in logs
+    log_gone = np.log(p0) + n * np.log(e) + miss * np.log1p(-e)
+    log_there = np.log1p(-p0) + n * np.log(p_d) + miss * np.log1p(-p_d)
+    p_gone = 1.0 / (1.0 + np.exp(log_there - log_gone))
+    gone = p_gone >= cfg.gone_threshold
+    seen = (frames_seen > 0) & ~gone
     return Changes(
-        kept=saved_ids[seen_again],
+        kept=saved_ids[seen],
         gone=saved_ids[gone],
         p_gone=p_gone[gone],
-        unseen=saved_ids[~seen_again & ~gone],
+        unseen=saved_ids[~seen & ~gone],
         new=np.asarray(new_ids, dtype=np.int64),
         p_detect=p_d,
     )
