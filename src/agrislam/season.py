@@ -189,8 +189,9 @@ class SeasonRun:
         area = ViewArea.learned(np.array(self._robot_xy).reshape(-1, 2), self.cfg.view_margin)
         new = world.active_ids()
         new = new[new > prior.ids.max()]
-        frames = world.objects.n_frames[ids]
-        self.changes = find_changes(ids, xy, frames, new, poses, area, self.cfg)
+        frames = world.objects.n_frames
+        fresh = (new, backend.object_positions(new), frames[new])
+        self.changes = find_changes(ids, xy, frames[ids], fresh, poses, area, self.cfg)
         if len(self.changes.gone):  # not deleted: out of the map, in its history as gone
             world.objects.retire(self.changes.gone, STATUS_GONE)
         return self.changes

@@ -39,6 +39,7 @@ def survey_history(season: SeasonRun | None, world: WorldModel, snapshot: MapSna
     else:
         status = np.full(len(o.ids), "seen", dtype=object)
         status[np.isin(o.ids, changes.new)] = "new"
+        status[np.isin(o.ids, changes.unconfirmed)] = "unconfirmed"
         status[np.isin(o.ids, changes.unseen)] = "not_looked_at"
     rows = plant_rows(
         survey,

@@ -15,7 +15,7 @@ removed plant that caught one detection of a neighbour or of clutter is still go
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -66,6 +66,7 @@ class Changes:
     unseen: np.ndarray
     new: np.ndarray
     p_detect: float
+    unconfirmed: np.ndarray = field(default_factory=lambda: np.empty(0, dtype=np.int64))
 
     def as_dict(self) -> dict[str, object]:
         return {
@@ -73,39 +74,54 @@ class Changes:
             "gone": len(self.gone),
             "new": len(self.new),
             "not_looked_at": len(self.unseen),
+            "unconfirmed": len(self.unconfirmed),
             "p_detect": self.p_detect,
         }
+
+
+def _log_odds_gone(
+    seen: np.ndarray, views: np.ndarray, p_d: float, cfg: SeasonConfig
+) -> np.ndarray:
+    """log P(not there) - log P(there) after `seen` detections in `views` frames in view
+    (the binomial posterior of the module docstring)."""
+    p0, e = cfg.gone_prior, cfg.stray_rate
+    miss = views - seen
+    log_gone = np.log(p0) + seen * np.log(e) + miss * np.log1p(-e)
+    log_there = np.log1p(-p0) + seen * np.log(p_d) + miss * np.log1p(-p_d)
+    return log_gone - log_there
 
 
 def find_changes(
     saved_ids: np.ndarray,
     saved_xy: np.ndarray,
     frames_seen: np.ndarray,
-    new_ids: np.ndarray,
+    new: tuple[np.ndarray, np.ndarray, np.ndarray],
     poses: np.ndarray,
     area: ViewArea,
     cfg: SeasonConfig,
 ) -> Changes:
     """Classify the saved plants (ids, map positions at the end of the survey), each seen
-    in `frames_seen` frames of this survey, given the frame poses."""
+    in `frames_seen` frames of this survey, and the survey's new objects (ids, positions,
+    frames seen), given the frame poses. A new object is a new plant only when the same
+    posterior says it is there (else it is `unconfirmed`: a stray detection's object)."""
     views = np.maximum(area.views(poses, saved_xy), frames_seen)
     there = frames_seen >= 2
     p_d = float(np.clip(frames_seen[there].sum() / max(views[there].sum(), 1), 0.05, 0.99))
-    p0, e = cfg.gone_prior, cfg.stray_rate
-    n, miss = frames_seen, views - frames_seen
-    # the binomial posterior of the module docstring, in logs
-    log_gone = np.log(p0) + n * np.log(e) + miss * np.log1p(-e)
-    log_there = np.log1p(-p0) + n * np.log(p_d) + miss * np.log1p(-p_d)
-    p_gone = 1.0 / (1.0 + np.exp(log_there - log_gone))
+    p_gone = 1.0 / (1.0 + np.exp(-_log_odds_gone(frames_seen, views, p_d, cfg)))
     gone = p_gone >= cfg.gone_threshold
     seen = (frames_seen > 0) & ~gone
+    new_ids, new_xy, new_seen = new
+    new_views = np.maximum(area.views(poses, new_xy), new_seen)
+    p_new = 1.0 / (1.0 + np.exp(_log_odds_gone(new_seen, new_views, p_d, cfg)))
+    confirmed = p_new >= cfg.gone_threshold
     return Changes(
         kept=saved_ids[seen],
         gone=saved_ids[gone],
         p_gone=p_gone[gone],
         unseen=saved_ids[~seen & ~gone],
-        new=np.asarray(new_ids, dtype=np.int64),
+        new=np.asarray(new_ids, dtype=np.int64)[confirmed],
         p_detect=p_d,
+        unconfirmed=np.asarray(new_ids, dtype=np.int64)[~confirmed],
     )
 
 

@@ -17,14 +17,15 @@ from typing import Any
 
 import numpy as np
 
-STATUSES = ("first", "seen", "new", "gone", "not_looked_at")
+STATUSES = ("first", "seen", "new", "unconfirmed", "gone", "not_looked_at")
 HISTORY_TABLES = """
 CREATE TABLE surveys (
     survey INTEGER PRIMARY KEY, t_abs REAL NOT NULL, localised INTEGER NOT NULL,
     summary TEXT NOT NULL);
 CREATE TABLE plant_history (
     plant_id INTEGER NOT NULL, survey INTEGER NOT NULL REFERENCES surveys(survey),
-    status TEXT NOT NULL CHECK (status IN ('first', 'seen', 'new', 'gone', 'not_looked_at')),
+    status TEXT NOT NULL CHECK (status IN ('first', 'seen', 'new', 'unconfirmed', 'gone',
+        'not_looked_at')),
     x REAL, y REAL, cov_xx REAL, cov_xy REAL, cov_yy REAL, n_meas INTEGER,
     interest REAL, p_gone REAL, beliefs TEXT NOT NULL,
     PRIMARY KEY (plant_id, survey)) WITHOUT ROWID;

@@ -53,6 +53,7 @@ def write_season_figure(history, path: str | Path) -> Path:
         "seen": dict(c="0.6", s=10, marker="o"),
         "not_looked_at": dict(c="0.85", s=8, marker="o"),
         "new": dict(c="tab:green", s=40, marker="^"),
+        "unconfirmed": dict(c="tab:orange", s=14, marker="."),
         "gone": dict(c="tab:red", s=50, marker="x"),
     }
     grew = {p: v[-1][1] - v[-2][1] for p, v in by_plant.items() if len(v) > 1}
