@@ -16,7 +16,7 @@ from agrislam.prior.map import PriorMap
 from agrislam.season import SeasonRun
 from agrislam.sinks.csv import write_table
 from agrislam.sinks.history import History, plant_rows, read_history, write_history
-from agrislam.sinks.season_figures import write_season_figure
+from agrislam.sinks.season_figures import growth_attribute, write_season_figure
 from agrislam.sinks.sqlite import load_map
 from agrislam.snapshot import MapSnapshot
 from agrislam.world import WorldModel
@@ -103,7 +103,8 @@ def season_outputs(
         }
         out.append(("changes.csv", lambda p: write_table(table, p)))
     if len(history.surveys) > 1:
-        out.append(("season.png", lambda p: write_season_figure(history, p)))
+        shown = growth_attribute(snapshot.schema)
+        out.append(("season.png", lambda p: write_season_figure(history, p, shown)))
     return out
 
 

@@ -15,16 +15,16 @@ import numpy as np
 SAMPLE = 12  # plants whose growth curves are drawn
 
 
-def _growth_attribute(history) -> str | None:
-    """A continuous attribute of the beliefs (mean, var) if any, else the discrete one
-    with the most values (a size)."""
-    if not history.rows:
+def growth_attribute(schema) -> str | None:
+    """The attribute the growth curves show: the first with a time model (App. B), else
+    the first continuous one, else one named like a size; None without a schema."""
+    if schema is None:
         return None
-    beliefs = json.loads(history.rows[0][11])
-    continuous = [n for n, v in beliefs.items() if len(v) == 2 and not np.isclose(sum(v), 1.0)]
-    if continuous:
-        return continuous[0]
-    return max(beliefs, key=lambda n: len(beliefs[n]), default=None)
+    attributes = schema.attributes
+    timed = [n for n, a in attributes.items() if getattr(a, "time_model", None) is not None]
+    continuous = list(schema.continuous)
+    sizes = [n for n in attributes if "size" in n or "length" in n]
+    return next(iter(timed + continuous + sizes), None)
 
 
 def _value(beliefs: dict, name: str) -> float:
@@ -34,7 +34,7 @@ def _value(beliefs: dict, name: str) -> float:
     return float(np.dot(np.arange(len(v)), v))  # expected cell of a discrete size
 
 
-def write_season_figure(history, path: str | Path) -> Path:
+def write_season_figure(history, path: str | Path, attribute: str | None = None) -> Path:
     """Change map (left) and growth curves (right) as one PNG, from a `history.History`
     (surveys and plant rows; not imported: a sink imports no other sink)."""
     path = Path(path)
@@ -42,7 +42,7 @@ def write_season_figure(history, path: str | Path) -> Path:
     t0 = history.surveys[0][1]
     days = {s: (t - t0) / 86_400.0 for s, t, _, _ in history.surveys}
     rows = history.rows
-    name = _growth_attribute(history)
+    name = attribute
     by_plant: dict[int, list[tuple[float, float]]] = {}
     for r in rows:
         if name is not None and r[2] != "gone":
