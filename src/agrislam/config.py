@@ -493,6 +493,12 @@ class SeasonConfig(_Strict):
         "of the best (periodic rows)",
     )
     attempt_every_s: float = Field(1.0, gt=0.0, description="s of driving between two tries")
+    window_s: float = Field(
+        10.0,
+        gt=0.0,
+        description="s of the latest frames a try registers: dead reckoning drifts (most in "
+        "a headland turn), so a longer stretch no longer fits one rigid transform",
+    )
     give_up_after_s: float = Field(
         300.0, gt=0.0, description="s of driving without a fix: map the survey as a new field"
     )

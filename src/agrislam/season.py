@@ -23,7 +23,9 @@ from agrislam.records import Detections, DiscreteMeasurement, Meta, Odometry, Re
 from agrislam.snapshot import STATUS_ACTIVE, STATUS_GONE
 from agrislam.world import WorldModel
 
-START_SIGMA_FLOOR = np.array([0.05, 0.05, 0.02])  # m, m, rad
+# m, m, rad: what dead reckoning may have drifted between the start and the frames of the
+# fix; the saved plants seen again then hold the trajectory
+START_SIGMA_FLOOR = np.array([0.1, 0.1, 0.03])
 
 
 @dataclass
@@ -32,6 +34,7 @@ class _Frames:
 
     pose: np.ndarray = field(default_factory=lambda: np.zeros(3))
     xy: list[np.ndarray] = field(default_factory=list)
+    t: list[float] = field(default_factory=list)  # time of each detection
     dists: dict[str, list[np.ndarray]] = field(default_factory=dict)
     t0: float | None = None
     last_try: float = -np.inf
@@ -88,6 +91,7 @@ class SeasonRun:
         yield from held
 
     def _place(self, robot: _Frames, frame: Detections) -> None:
+        robot.t.extend([frame.t] * len(frame.objects))
         for det in frame.objects:
             robot.xy.append(
                 se2.to_map_frame(robot.pose, det.position()[None], np.eye(2)[None])[0][0]
@@ -117,13 +121,14 @@ class SeasonRun:
         if driven - robot.last_try < self.cfg.attempt_every_s:
             return None
         robot.last_try = driven
-        xy = np.array(robot.xy).reshape(-1, 2)
+        recent = np.asarray(robot.t) >= t - self.cfg.window_s
+        xy = np.array(robot.xy).reshape(-1, 2)[recent]
         local, counts, label = cluster(xy, self.cfg.cluster_radius)
         if robot.dists and len(self.prior.ids):
             start = meta.survey_start if meta is not None and meta.survey_start else 0.0
             world_beliefs = self.prior.belief_table(self.config.semantics, self.prior.t_abs - start)
             means = {
-                name: _cluster_mean(np.array(d), label, len(local))
+                name: _cluster_mean(np.array(d)[recent], label, len(local))
                 for name, d in robot.dists.items()
             }
             check = self.prior.compatibility(world_beliefs, t)
