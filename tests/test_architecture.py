@@ -15,6 +15,7 @@ MAX_LINES = 600
 # the core, lowest first: each part may import only the parts before it
 CORE = [
     "limits",
+    "season_config",
     "config",
     "growing",
     "records",
@@ -24,6 +25,7 @@ CORE = [
     "association",
     "objects",
     "maintenance",
+    "prior",
     "world",
 ]
 # adapters: what each must never import (besides the CLI and the pipeline, which none may)

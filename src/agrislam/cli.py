@@ -81,8 +81,9 @@ FormatOption = Annotated[
 SOURCE_SECTIONS = ("bag", "sim")  # config file sections for the source, not the world model
 
 
-@app.command()
+@app.command(context_settings={"allow_extra_args": True})
 def simulate(
+    ctx: typer.Context,
     preset: Annotated[
         str, typer.Option(help="Schema preset of the simulated field.")
     ] = "colour_size",
@@ -95,12 +96,130 @@ def simulate(
     config: ConfigOption = None,
     force: ForceOption = False,
     formats: FormatOption = None,
+    days: Annotated[
+        list[float] | None,
+        typer.Option(
+            help="A season: one survey log per day (--days 0 7 14), each mapped on the "
+            "previous day's map, its robot starting at an unknown place (issue 15).",
+        ),
+    ] = None,
 ) -> None:
     """Simulate a field survey and map it (default: the paper's 400-plant simulation)."""
     from agrislam.sources.simulated import simulation_uri
 
+    if days:
+        _season(days + _numbers(ctx.args), preset, plants, seed, out, config, force)
+        return
+    if ctx.args:
+        _fail(f"unexpected arguments {' '.join(ctx.args)}", 2)
     uri = simulation_uri(plants=plants, seed=seed, preset=preset)
     _survey(uri, config, out, record=record, force=force, formats=formats)
+
+
+def _numbers(args: list[str]) -> list[float]:
+    """The further values of --days (`--days 0 7 14`: typer takes the first only)."""
+    try:
+        return [float(a) for a in args]
+    except ValueError:
+        _fail(f"--days takes numbers, got {' '.join(args)}", 2)
+
+
+def _season(
+    days: list[float],
+    preset: str,
+    plants: int,
+    seed: int,
+    out: Path,
+    config: Path | None,
+    force: bool,
+) -> None:
+    """Each survey day as a log of its own (OUT/day_007.jsonl) mapped into OUT/day_007/,
+    every day after the first continuing the previous day's map.sqlite."""
+    from agrislam.sim.config import SimConfig
+    from agrislam.sim.season import SeasonSimulator, season_config
+    from agrislam.sinks.jsonl import write_log
+
+    if sorted(days) != days or len(set(days)) != len(days):
+        _fail(f"--days must increase, got {days}", 2)
+    with _user_errors():
+        data = load_mapping(config) if config else {}
+        base = SimConfig.model_validate({**(data.get("sim") or {}), "seed": seed})
+        base.field.n_plants = plants
+        base.schema_ = base.schema_ if "schema" in (data.get("sim") or {}) else preset
+        sim = SeasonSimulator(season_config(base, days))
+        out.mkdir(parents=True, exist_ok=True)
+    previous = None
+    for d, day in enumerate(days):
+        name = f"day_{day:03g}"
+        log = out / f"{name}.jsonl"
+        write_log(sim.day_records(d), log)
+        console.print(f"[bold]{name}[/]: survey log {escape(str(log))}")
+        _survey(str(log), config, out / name, force=force, prior_map=previous)
+        previous = out / name / "map.sqlite"
+
+
+@app.command()
+def history(
+    map_file: Annotated[Path, typer.Argument(metavar="MAP", exists=True, dir_okay=False)],
+    plant: Annotated[int | None, typer.Option(help="One plant's rows over the surveys.")] = None,
+    plot: Annotated[
+        Path | None, typer.Option(help="Write the change map and growth curves (PNG).")
+    ] = None,
+) -> None:
+    """A saved map's season: its surveys and what changed, or one plant's history."""
+    from agrislam.sinks.history import read_history
+    from agrislam.sinks.season_figures import growth_attribute, write_season_figure
+    from agrislam.sinks.sqlite import load_map
+
+    with _user_errors():
+        hist = read_history(map_file)
+    if not hist.surveys:
+        _fail(f"{map_file}: no history (a map written before issue 15)", 1)
+    if plant is not None:
+        rows = hist.plant(plant)
+        if not rows:
+            _fail(f"plant {plant} is not in {map_file}", 1)
+        schema = load_map(map_file).schema
+        table = Table("survey", "status", "x", "y", "n_meas", "interest", "P(gone)", "beliefs")
+        for r in rows:
+            gone = "" if r["p_gone"] is None else f"{r['p_gone']:.3f}"
+            beliefs = _belief_text(r["beliefs"], schema)
+            table.add_row(
+                str(r["survey"]),
+                r["status"],
+                f"{r['x']:.3f}",
+                f"{r['y']:.3f}",
+                str(r["n_meas"]),
+                f"{r['interest']:.3f}",
+                gone,
+                beliefs,
+            )
+        console.print(table)
+    else:
+        table = Table("survey", "day", "localised", "kept", "gone", "new", "not looked at")
+        t0 = hist.surveys[0][1]
+        for survey, t_abs, localised, summary in hist.surveys:
+            changes = json.loads(summary).get("changes") or {}
+            counts = [str(changes.get(k, "")) for k in ("kept", "gone", "new", "not_looked_at")]
+            day = f"{(t_abs - t0) / 86_400:.1f}"
+            table.add_row(str(survey), day, "yes" if localised else "-", *counts)
+        console.print(table)
+    if plot is not None:
+        write_season_figure(hist, plot, growth_attribute(load_map(map_file).schema))
+        console.print(f"wrote {escape(str(plot))}")
+
+
+def _belief_text(beliefs: dict[str, list[float]], schema: Any) -> str:
+    """Most probable value and its probability per discrete attribute, mean +- std per
+    continuous one."""
+    parts = []
+    for name, v in beliefs.items():
+        if schema is not None and name in schema.discrete:
+            k = max(range(len(v)), key=v.__getitem__)
+            parts.append(f"{name} {schema.discrete[name].values[k]} {v[k]:.2f}")
+        else:
+            parts.append(f"{name} {v[0]:.3f}+-{max(v[1], 0.0) ** 0.5:.3f}")
+    return ", ".join(parts)
 
 
 @app.command()
@@ -128,9 +247,28 @@ def run(
             "(same input and config); without one, start from the first record.",
         ),
     ] = False,
+    prior_map: Annotated[
+        Path | None,
+        typer.Option(
+            "--map",
+            exists=True,
+            dir_okay=False,
+            help="Continue this saved map.sqlite: re-localise in it, keep its plants' ids, "
+            "list what changed (issue 15).",
+        ),
+    ] = None,
 ) -> None:
     """Map a recorded (or simulated) survey."""
-    _survey(log, config, out, strict=strict, force=force, formats=formats, resume=resume)
+    _survey(
+        log,
+        config,
+        out,
+        strict=strict,
+        force=force,
+        formats=formats,
+        resume=resume,
+        prior_map=prior_map,
+    )
 
 
 def _survey(
@@ -143,6 +281,7 @@ def _survey(
     force: bool = False,
     formats: list[str] | None = None,
     resume: bool = False,
+    prior_map: Path | None = None,
 ) -> None:
     """Open the source, run the survey, print the source's report and the run's summary.
     The config file's ``bag:`` and ``sim:`` sections go to the source that reads them.
@@ -156,6 +295,10 @@ def _survey(
         cfg = _validated(AgrislamConfig, data, config)
         if resume and force:
             raise ValueError("--resume carries on the run in --out, --force replaces it: give one")
+        if resume and prior_map is not None:  # a checkpoint does not hold the season's state
+            raise ValueError(
+                "--resume of a run that continues a saved map (--map) is not supported"
+            )
         source = open_source(path_or_uri, cfg, strict=strict, **sections)
         identity = config_identity(cfg, strict=strict, **sections)
         with RunFolder(out, force=force, resume=resume) as folder:
@@ -175,7 +318,13 @@ def _survey(
             try:
                 with _stop_between_records():
                     result = _run(
-                        records, cfg, folder, f"mapping {source.name}", checkpoints, resume
+                        records,
+                        cfg,
+                        folder,
+                        f"mapping {source.name}",
+                        checkpoints,
+                        resume,
+                        prior_map,
                     )
             except RunError as err:
                 _stopped(err, out, strict)
@@ -320,6 +469,7 @@ def _run(
     what: str,
     checkpoints: Checkpoints,
     resume: bool,
+    prior_map: Path | None = None,
 ) -> RunResult:
     total = len(records) if isinstance(records, list) else None
     with Progress(
@@ -331,6 +481,11 @@ def _run(
         transient=True,
     ) as progress:
         task = progress.add_task(what, total=total)
+        season = None
+        if prior_map is not None:
+            from agrislam.season_outputs import load_season
+
+            season = load_season(prior_map, cfg)
         result = run_survey(
             records,
             WorldModel(cfg),
@@ -338,6 +493,7 @@ def _run(
             lambda: _advance(progress, task),
             checkpoints=checkpoints,
             resume=resume,
+            season=season,
         )
     if resume:
         at = (result.checkpoints or {}).get("resumed_at_record")

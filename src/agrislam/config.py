@@ -19,6 +19,7 @@ from pydantic import BaseModel, ConfigDict, Field, PositiveFloat, model_validato
 
 from agrislam.limits import InputLimits
 from agrislam.limits import StrictModel as _Strict
+from agrislam.season_config import SeasonConfig
 
 SECONDS_PER_DAY = 86_400.0
 # association keys renamed since 0.1: old -> new (read with a FutureWarning)
@@ -510,6 +511,7 @@ class AgrislamConfig(_Strict):
     gnss: GnssConfig = Field(default_factory=GnssConfig)
     outputs: OutputsConfig = Field(default_factory=OutputsConfig)
     checkpoint: CheckpointConfig = Field(default_factory=CheckpointConfig)
+    season: SeasonConfig = Field(default_factory=SeasonConfig)
     label_map: dict[str, dict[str, str]] = Field(
         default_factory=dict,
         description="combined detector label -> attribute values, e.g. "

@@ -21,6 +21,8 @@ from agrislam.evaluation import association_counts, evaluate, truth_trajectories
 from agrislam.growing import GrowingRows
 from agrislam.perception.label_map import LabelMap
 from agrislam.records import Detections, Meta, Record, TruthObject, TruthPose
+from agrislam.season import SeasonRun
+from agrislam.season_outputs import season_outputs
 from agrislam.sinks.atomic import atomic_path
 from agrislam.sinks.csv import write_objects_csv, write_table, write_trajectory_csv
 from agrislam.sinks.foxglove import write_foxglove_mcap
@@ -106,6 +108,7 @@ class RunResult:
     noise: dict[str, Any] | None = None  # the noise scales the run estimated (calibration.py)
     gnss: dict[str, int] = field(default_factory=dict)  # fixes used and rejected (issue 13)
     checkpoints: dict[str, Any] | None = None  # resumed at which record, checkpoints taken
+    season: dict[str, Any] | None = None  # a survey that continued a saved map (issue 15)
 
     @property
     def usable(self) -> bool:
@@ -149,6 +152,7 @@ def run_survey(
     force: bool = False,
     checkpoints: Checkpoints | None = None,
     resume: bool = False,
+    season: SeasonRun | None = None,
 ) -> RunResult:
     """Feed every record to the world model, then score the map and write the outputs.
 
@@ -164,9 +168,9 @@ def run_survey(
     input or config), skipping the records it had mapped."""
     if isinstance(out_dir, (str, Path)):
         with RunFolder(out_dir, force=force, resume=resume) as folder:
-            result = _run(records, world, folder, progress, checkpoints, resume)
+            result = _run(records, world, folder, progress, checkpoints, resume, season)
     else:
-        result = _run(records, world, out_dir, progress, checkpoints, resume)
+        result = _run(records, world, out_dir, progress, checkpoints, resume, season)
     if result.error is not None:
         raise RunError(result) from result.error
     return result
@@ -179,6 +183,7 @@ def _run(
     progress: Callable[[], None] | None,
     checkpoints: Checkpoints | None = None,
     resume: bool = False,
+    season: SeasonRun | None = None,
 ) -> RunResult:
     source = records if isinstance(records, Source) else None
     stream = source.records() if source is not None else records
@@ -189,7 +194,8 @@ def _run(
     start = time.perf_counter()
     error = None
     try:
-        for position, record in enumerate(_split_labels(synced, world, issues), 1):
+        gated = synced if season is None else season.gate(synced, world)
+        for position, record in enumerate(_split_labels(gated, world, issues), 1):
             if position > state.position:  # else mapped before the checkpoint resumed
                 frame = _feed(record, world, state.truth)
                 state.n_frames += frame
@@ -200,6 +206,8 @@ def _run(
             if progress is not None:
                 progress()
         world.finish()
+        if season is not None:
+            season.finish(world)
     except (Exception, KeyboardInterrupt) as err:  # the map so far is still written
         error = err
     wall = time.perf_counter() - start
@@ -221,7 +229,12 @@ def _run(
     result.snapshot = _snapshot(world, result)
     if result.snapshot is not None and truth.present:
         result.metrics = _score(result, world, truth)
+    summary = _summary(result)
+    if season is not None:
+        summary["season"] = season.summary()
+        result.season = summary["season"]
     if folder is not None and (counts or error is None):
+        extra = season_outputs(season, world, result.snapshot)
         kept = None  # a stopped run keeps its last checkpoint in map.sqlite, to resume
         if checkpoints is not None and error is not None:
             kept = checkpoints.last or {"format": FORMAT}
@@ -230,9 +243,10 @@ def _run(
             folder.path,
             result.metrics,
             truth,
-            _summary(result),
+            summary,
             world.config.outputs,
             kept,
+            extra,
         )
     return result
 
@@ -379,6 +393,7 @@ def write_outputs(
     summary: dict[str, Any] | None = None,
     outputs: OutputsConfig | None = None,
     checkpoint: dict[str, bytes] | None = None,
+    extra: list[tuple[str, Callable[[Path], Any]]] | None = None,
 ) -> tuple[list[Path], dict[str, str]]:
     """The files of DESIGN.md "Outputs of a run", each written atomically (a killed run
     leaves whole files only) and each on its own: one that fails is reported in the second
@@ -408,6 +423,7 @@ def write_outputs(
         writers.append(
             ("report.png", lambda p: write_report(snapshot, p, metrics=metrics, truth=trajectories))
         )
+    writers = _with_extra(writers, extra or [])
     written: list[Path] = []
     failed: dict[str, str] = {}
     for name, write in writers:
@@ -425,3 +441,19 @@ def write_outputs(
             write_metrics({**(metrics or {}), **summary, "run": run}, tmp)
         written.append(out_dir / "metrics.json")
     return written, failed
+
+
+def _with_extra(
+    writers: list[tuple[str, Callable[[Path], Any]]], extra: list[tuple[str, Callable[[Path], Any]]]
+) -> list[tuple[str, Callable[[Path], Any]]]:
+    """The writers with `extra` ones: one of the same name writes after the first into the
+    same temporary file (map.sqlite gains the season's tables in the same atomic write)."""
+    out = list(writers)
+    for name, write in extra:
+        at = next((k for k, (n, _) in enumerate(out) if n == name), None)
+        if at is None:
+            out.append((name, write))
+        else:
+            first = out[at][1]
+            out[at] = (name, lambda p, first=first, write=write: (first(p), write(p)))
+    return out

@@ -47,6 +47,7 @@ class Meta:
     robots: dict[str, RobotStart] = field(default_factory=dict)
     anchor: Anchor | None = None
     field: FieldPrior | None = None
+    survey_start: float | None = None  # Unix time (s) of t = 0 (docs/log-format.md 1.2)
 
 
 @dataclass(frozen=True, slots=True)

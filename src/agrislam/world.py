@@ -40,6 +40,8 @@ from agrislam.geometry.rows import RowTracker
 from agrislam.growing import GrowingRows
 from agrislam.maintenance import MaintenanceResult, merge_pairs, prune_due
 from agrislam.objects import ObjectTable
+from agrislam.prior.backend import PriorBackend
+from agrislam.prior.map import PriorMap
 from agrislam.records import (
     Detection,
     Detections,
@@ -133,6 +135,15 @@ class WorldModel:
         self._settled = False  # the defaults that depend on the survey are chosen
         self.gnss = GnssFixes(self.config.gnss)
         self._timer = _Timer()
+        self.prior: PriorMap | None = None  # a saved map this survey continues (issue 15)
+        self.survey_start: float | None = None  # absolute time (Unix s) of t = 0
+
+    def use_prior(self, prior: PriorMap) -> None:
+        """Continue a saved map: its plants enter with the survey's meta (whose start time
+        says how long they grew). Call before the first record."""
+        if len(self.objects) or self.robots:
+            raise RuntimeError("a prior map must be given before the survey's first record")
+        self.prior = prior
 
     @property
     def beliefs(self) -> BeliefTable:
@@ -155,6 +166,11 @@ class WorldModel:
 
     def configure(self, meta: Meta) -> None:
         """Take the schema, start poses, anchor and field knowledge of a survey."""
+        self.survey_start = (
+            meta.survey_start if meta.survey_start is not None else self.survey_start
+        )
+        if self.prior is not None and not isinstance(self.backend, PriorBackend):
+            self._enter_prior(self.prior, meta)
         if self.schema is None and meta.schema is not None and len(self.objects) == 0:
             self.schema = meta.schema
             self.objects = ObjectTable(BeliefTable(self.schema, self.config.semantics))
@@ -167,6 +183,25 @@ class WorldModel:
             if not chain.started:
                 chain.start_pose = np.asarray(start.pose, dtype=float)
                 chain.start_sigma = np.asarray(start.sigma, dtype=float)
+
+    def _enter_prior(self, prior: PriorMap, meta: Meta) -> None:
+        """The saved plants as objects with their ids, beliefs stamped with the saved
+        survey's time in this survey's clock (App. B carries them when read), positions
+        answered by the prior back end until seen again."""
+        if prior.schema is not None and meta.schema is not None and prior.schema != meta.schema:
+            raise ValueError("the survey's schema differs from the saved map's")
+        self.schema = self.schema or prior.schema
+        # a map without history has no time: its beliefs are as of this survey's start
+        known = np.isfinite(prior.t_abs)
+        belief_time = prior.t_abs - (self.survey_start or 0.0) if known else 0.0
+        self.objects = ObjectTable(prior.belief_table(self.config.semantics, belief_time))
+        self.objects.on_retire(self.index.forget)
+        self.objects.young[:] = False
+        gaps = np.setdiff1d(np.arange(len(self.objects)), prior.ids)
+        if len(gaps):
+            self.objects.retire(gaps, STATUS_PRUNED)
+        self.backend = PriorBackend(self.backend, prior.ids, prior.xy, prior.cov)
+        self.index.rebuild(prior.ids, prior.xy)
 
     def _use_field_prior(self, prior: FieldPrior) -> None:
         """What the survey knows of its field, unless the run's config says otherwise."""

@@ -15,6 +15,7 @@ from agrislam.geometry.graph import (
     DETECTION,
     GNSS,
     ODOMETRY,
+    PRIOR_POINT,
     PRIOR_POSE,
     ROW_ANCHOR,
     ROW_MEMBER,
@@ -163,6 +164,13 @@ class BackendBase:
         if xy.shape != (2,) or not np.all(np.isfinite(xy)):
             raise ValueError(f"object {object_id}: xy must be 2 finite numbers, got {xy!r}")
         self._insert(self.graph.add_object(int(object_id), xy), xy)
+
+    def add_object_prior(self, object_id: int, xy: np.ndarray, cov: np.ndarray) -> None:
+        """A prior on the object's position: where a saved map has it, with its covariance."""
+        okey = self.graph.require_object(int(object_id))
+        cov = check_covariance(cov, 2, f"prior of object {object_id}")
+        value = np.asarray(xy, dtype=float)
+        self._add(self.graph.add_factor(Factor(PRIOR_POINT, (okey,), value, cov)))
 
     def add_observation(self, robot: str, object_id: int, measurement: Measurement) -> None:
         """A detection of the object from the robot's latest pose (robust kernel, sec. 2.6)."""

@@ -39,6 +39,7 @@ from agrislam.geometry.graph import (
     DETECTION,
     GNSS,
     ODOMETRY,
+    PRIOR_POINT,
     PRIOR_POSE,
     ROW_ANCHOR,
     ROW_MEMBER,
@@ -145,6 +146,9 @@ def _edge_line(factor: Factor, vertex: dict[int, int]) -> str:
         return f"EDGE_POINTXY {ids} {_num(d[0])} {_num(d[1])} {_upper(_rank_one(normal, cov))}"
     if factor.kind == ROW_ANCHOR:
         info = _rank_one(row_direction(value[2]), cov)
+        return f"EDGE_PRIOR_XY {ids} {_num(value[0])} {_num(value[1])} {_upper(info)}"
+    if factor.kind == PRIOR_POINT:  # a saved map's plant (issue 15)
+        info = np.linalg.inv(cov)
         return f"EDGE_PRIOR_XY {ids} {_num(value[0])} {_num(value[1])} {_upper(info)}"
     raise ValueError(f"cannot write factor kind {factor.kind!r}")
 

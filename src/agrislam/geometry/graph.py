@@ -28,6 +28,7 @@ ROW_MEMBER = "row_member"  # keys (row, object), value angle, cov cross-row sigm
 ROW_SPACING = "row_spacing"  # keys (row_a, row_b), value (angle, distance), cov sigma
 # keys (pose,), value (antenna x, y in the map, lever arm x, y, kernel k, kernel), cov 2x2
 GNSS = "gnss"
+PRIOR_POINT = "prior_point"  # keys (object,), value (2,) saved position, cov 2x2 (issue 15)
 
 
 def pose_key(robot_index: int, i: int) -> int:
@@ -182,6 +183,9 @@ def make_factor(factor: Factor, slam: SlamConfig) -> gtsam.NonlinearFactor:
         )
     if kind == PRIOR_POSE:
         return gtsam.PriorFactorPose2(keys[0], gtsam.Pose2(*value), gaussian(cov))
+    if kind == PRIOR_POINT:
+        # a plant of a saved map: its saved position with its saved covariance (issue 15)
+        return gtsam.PriorFactorPoint2(keys[0], np.asarray(value, dtype=float), gaussian(cov))
     if kind == ROW_MEMBER:
         # sec. 2.6.2: plant to row node, across the row only
         noise = one_direction(row_normal(float(value[0])), float(cov))

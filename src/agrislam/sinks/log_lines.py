@@ -4,6 +4,7 @@ A helper of the sinks, not a sink: it writes nothing."""
 
 from __future__ import annotations
 
+from datetime import UTC, datetime
 from typing import Any
 
 import numpy as np
@@ -66,6 +67,9 @@ def record_to_json(rec: Record) -> dict[str, Any]:
                 n: {"start_pose": _list(r.pose), "start_sigma": _list(r.sigma)}
                 for n, r in rec.robots.items()
             }
+        if rec.survey_start is not None:  # docs/log-format.md 1.2
+            when = datetime.fromtimestamp(rec.survey_start, tz=UTC)
+            out["survey_start"] = when.isoformat().replace("+00:00", "Z")
         if rec.anchor is not None:
             a = rec.anchor
             out["anchor"] = {"lat": a.lat, "lon": a.lon, "h": a.h, "yaw_deg": a.yaw_deg}

@@ -43,6 +43,8 @@ OUTPUT_NAMES = (
     "map.mcap",
     "map_foxglove.mcap",
     "report.png",
+    "changes.csv",  # a survey that continued a saved map (issue 15)
+    "season.png",
     "metrics.json",
 )
 

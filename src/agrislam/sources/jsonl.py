@@ -13,6 +13,7 @@ import json
 import math
 import re
 from collections.abc import Iterator
+from datetime import datetime
 from pathlib import Path
 from typing import IO, Any
 
@@ -216,7 +217,15 @@ class _Parser:
                 prior = FieldPrior(*(_number(f, k, required=False) for k in keys))
         if schema is not None:
             self.schema = schema
-        return Meta(version=VERSION, schema=schema, robots=robots, anchor=anchor, field=prior)
+        start = _survey_start(obj)
+        return Meta(
+            version=VERSION,
+            schema=schema,
+            robots=robots,
+            anchor=anchor,
+            field=prior,
+            survey_start=start,
+        )
 
     def _odom(self, obj: dict) -> Odometry:
         t, robot = self._timed(obj)
@@ -523,3 +532,21 @@ def read_log(
         limits=sensor.limits,
         default_odom_cov=sensor.odom_cov_diag,
     )
+
+
+def _survey_start(obj: dict) -> float | None:
+    """`survey_start` (reader 1.2, issue 15): the ISO 8601 date-time with a time zone of the
+    survey's t = 0, as Unix seconds; absent: t counts from any epoch the log likes."""
+    text = obj.get("survey_start")
+    if text is None:
+        return None
+    with within("survey_start"):
+        if not isinstance(text, str):
+            raise BadRecordError("bad_value", "must be an ISO 8601 date-time string")
+        try:
+            when = datetime.fromisoformat(text.replace("Z", "+00:00"))
+        except ValueError:
+            raise BadRecordError("bad_value", f"{_short(text)} is no ISO 8601 date-time") from None
+        if when.tzinfo is None:
+            raise BadRecordError("bad_value", "the date-time needs a time zone (Z or +hh:mm)")
+    return when.timestamp()

@@ -1,0 +1,70 @@
+"""The back end of a survey that continues a saved map: saved plants wait outside the
+graph, answered from their saved position and covariance, until the survey sees one; it
+then enters the graph with a prior factor of its saved covariance (a real GTSAM
+PriorFactorPoint2) and is mapped on like any plant. A 10,000-plant map so loads in no
+time and costs the solver only the plants the robot meets again."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from agrislam.geometry.backend import Measurement
+from agrislam.geometry.base import BackendBase
+
+
+class PriorBackend:
+    """Wraps a back end; every call it does not handle goes to the wrapped one."""
+
+    def __init__(self, inner: BackendBase, ids: np.ndarray, xy: np.ndarray, cov: np.ndarray):
+        self.inner = inner
+        self._held = {int(i): k for k, i in enumerate(np.asarray(ids).tolist())}
+        self._xy, self._cov = np.asarray(xy, dtype=float), np.asarray(cov, dtype=float)
+        self.entered: set[int] = set()  # saved plants the survey brought into the graph
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self.inner, name)
+
+    def held(self, object_ids: np.ndarray) -> np.ndarray:
+        """(k,) whether each object is a saved plant not yet in the graph."""
+        return np.fromiter((int(i) in self._held for i in object_ids), bool, len(object_ids))
+
+    def _enter(self, object_id: int) -> None:
+        row = self._held.pop(int(object_id), None)
+        if row is None:
+            return
+        self.inner.add_object(object_id, self._xy[row])
+        self.inner.add_object_prior(object_id, self._xy[row], self._cov[row])
+        self.entered.add(int(object_id))
+
+    # ------------------------------------------------------------- what changes
+    def add_observation(self, robot: str, object_id: int, measurement: Measurement) -> None:
+        self._enter(object_id)
+        self.inner.add_observation(robot, object_id, measurement)
+
+    def merge_objects(self, keep: int, drop: int) -> None:
+        self._enter(keep)
+        self._enter(drop)
+        self.inner.merge_objects(keep, drop)
+
+    def remove_object(self, object_id: int) -> None:
+        if self._held.pop(int(object_id), None) is None:
+            self.inner.remove_object(object_id)
+
+    # ------------------------------------------------------------------ queries
+    def object_positions(self, object_ids: np.ndarray) -> np.ndarray:
+        return self._answer(object_ids, self._xy, self.inner.object_positions, (2,))
+
+    def object_covariances(self, object_ids: np.ndarray) -> np.ndarray:
+        return self._answer(object_ids, self._cov, self.inner.object_covariances, (2, 2))
+
+    def _answer(self, object_ids, saved: np.ndarray, ask, shape: tuple[int, ...]) -> np.ndarray:
+        object_ids = np.asarray(object_ids, dtype=np.int64)
+        held = self.held(object_ids)
+        out = np.empty((len(object_ids), *shape))
+        if held.any():
+            out[held] = saved[[self._held[int(i)] for i in object_ids[held]]]
+        if (~held).any():
+            out[~held] = ask(object_ids[~held])
+        return out

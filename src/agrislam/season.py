@@ -1,0 +1,223 @@
+"""A survey that continues a saved map (issue 15), as the pipeline runs it: the records
+held back until the robot is re-localised in the saved map (never merged into a wrong
+place), then the survey mapped on the saved plants; at the end what changed.
+
+`SeasonRun(prior, config)` is handed to `pipeline.run_survey`; `gate` wraps the pose-synced
+records, `finish` classifies the saved plants after the world's last step.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from agrislam.config import AgrislamConfig, FieldSchema
+from agrislam.geometry import se2
+from agrislam.prior.changes import Changes, ViewArea, find_changes
+from agrislam.prior.map import PriorMap
+from agrislam.prior.relocalise import Fix, Relocaliser, cluster
+from agrislam.records import Detections, DiscreteMeasurement, Meta, Odometry, Record, RobotStart
+from agrislam.snapshot import STATUS_ACTIVE, STATUS_GONE
+from agrislam.world import WorldModel
+
+# m, m, rad: what dead reckoning may have drifted between the start and the frames of the
+# fix; the saved plants seen again then hold the trajectory
+START_SIGMA_FLOOR = np.array([0.1, 0.1, 0.03])
+
+
+@dataclass
+class _Frames:
+    """One robot's first frames by dead reckoning: detection positions and attributes."""
+
+    pose: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    xy: list[np.ndarray] = field(default_factory=list)
+    t: list[float] = field(default_factory=list)  # time of each detection
+    dists: dict[str, list[np.ndarray]] = field(default_factory=dict)
+    t0: float | None = None
+    last_try: float = -np.inf
+
+
+class SeasonRun:
+    """Re-localisation and change finding of one survey against a saved map."""
+
+    def __init__(self, prior: PriorMap, config: AgrislamConfig) -> None:
+        self.prior, self.config, self.cfg = prior, config, config.season
+        self.relocaliser = Relocaliser(prior.xy, self.cfg)
+        self.fix: Fix | None = None
+        self.tries: list[tuple[float, str]] = []  # (s driven, outcome) of every try
+        self.localised_after: float | None = None  # s of driving until the fix
+        self.merged = False
+        self.start_check: str | None = None
+        self.changes: Changes | None = None
+        self._robot_xy: list[np.ndarray] = []
+        self.history = None  # the saved map's history (sinks.history.History), if it has one
+
+    # ----------------------------------------------------------------- the gate
+    def gate(self, records: Iterable[Record], world: WorldModel) -> Iterator[Record]:
+        """Hold the records back until a fix (or the survey ends, or time runs out without
+        one: then the survey maps on its own, not merged); then the meta with the fixed
+        start pose and everything held."""
+        meta: Meta | None = None
+        held: list[Record] = []
+        frames: dict[str, _Frames] = {}
+        it = iter(records)
+        for rec in it:
+            if isinstance(rec, Meta):
+                meta = rec
+                continue
+            held.append(rec)
+            if isinstance(rec, Detections):
+                self._keep_robot_frame(rec)
+            if not isinstance(rec, (Odometry, Detections)):
+                continue
+            robot = frames.setdefault(rec.robot, _Frames())
+            if robot.t0 is None:
+                robot.t0 = rec.t
+            if isinstance(rec, Odometry) and rec.delta is not None:
+                robot.pose = se2.compose(robot.pose, rec.delta)
+            elif isinstance(rec, Detections) and rec.robot == next(iter(frames)):
+                self._place(robot, rec)
+                done = self._try(robot, rec.t, meta, world)
+                if done is not None:
+                    yield done
+                    yield from held
+                    yield from it
+                    return
+        self.tries.append((np.nan, self.fix.reason if self.fix else "no frames"))
+        yield meta if meta is not None else Meta()
+        yield from held
+
+    def _place(self, robot: _Frames, frame: Detections) -> None:
+        robot.t.extend([frame.t] * len(frame.objects))
+        for det in frame.objects:
+            robot.xy.append(
+                se2.to_map_frame(robot.pose, det.position()[None], np.eye(2)[None])[0][0]
+            )
+            for name, dist in self._distributions(det.attributes).items():
+                robot.dists.setdefault(name, []).append(dist)
+
+    def _distributions(self, attributes) -> dict[str, np.ndarray]:
+        """Each discrete measurement as the distribution of Assumption 1 (p on the value,
+        the rest spread uniformly)."""
+        schema: FieldSchema | None = self.prior.schema
+        out = {}
+        if schema is None:
+            return out
+        for name, spec in schema.discrete.items():
+            m = attributes.get(name)
+            n = len(spec.values)
+            dist = np.full(n, 1.0 / n)
+            if isinstance(m, DiscreteMeasurement) and m.value in spec.values and m.p >= 1.0 / n:
+                dist = np.full(n, (1.0 - m.p) / max(n - 1, 1))
+                dist[spec.values.index(m.value)] = m.p
+            out[name] = dist
+        return out
+
+    def _try(self, robot: _Frames, t: float, meta: Meta | None, world: WorldModel) -> Meta | None:
+        driven = t - robot.t0
+        if driven - robot.last_try < self.cfg.attempt_every_s:
+            return None
+        robot.last_try = driven
+        recent = np.asarray(robot.t) >= t - self.cfg.window_s
+        xy = np.array(robot.xy).reshape(-1, 2)[recent]
+        local, counts, label = cluster(xy, self.cfg.cluster_radius)
+        if robot.dists and len(self.prior.ids):
+            start = meta.survey_start if meta is not None and meta.survey_start else 0.0
+            world_beliefs = self.prior.belief_table(self.config.semantics, self.prior.t_abs - start)
+            means = {
+                name: _cluster_mean(np.array(d)[recent], label, len(local))
+                for name, d in robot.dists.items()
+            }
+            check = self.prior.compatibility(world_beliefs, t)
+            ids = self.prior.ids
+            self.relocaliser.compatible = lambda rows, j: check(
+                {n: m[rows] for n, m in means.items()}, ids[j]
+            )
+        self.fix = self.relocaliser.locate(local, counts)
+        self.tries.append((driven, self.fix.reason))
+        if self.fix.localised:
+            self.localised_after = driven
+            return self._start(meta, world, self.fix)
+        if driven > self.cfg.give_up_after_s:
+            return meta if meta is not None else Meta()
+        return None
+
+    def _start(self, meta: Meta | None, world: WorldModel, fix: Fix) -> Meta:
+        """The meta with the first robot's start pose from the fix, the prior given to the
+        world; a start pose the meta already gives is only checked against the fix."""
+        meta = meta if meta is not None else Meta()
+        first = self._first_robot
+        start = fix.transform
+        given = meta.robots.get(first)
+        if given is not None:
+            d = np.linalg.norm(given.pose[:2] - start[:2])
+            turn = abs(se2.wrap_angle(given.pose[2] - start[2]))
+            self.start_check = f"start pose off the fix by {d:.2f} m, {np.degrees(turn):.1f} deg"
+            if d > self.cfg.start_tolerance[0] or turn > self.cfg.start_tolerance[1]:
+                self.start_check += ": refused, not merged"
+                return meta
+            return self._merge(meta, world)
+        # the fix's own uncertainty, widened and floored: a start prior, not a clamp
+        sigma = np.maximum(3.0 * np.sqrt(np.diag(fix.cov)), START_SIGMA_FLOOR)
+        robots = {**meta.robots, first: RobotStart(pose=start, sigma=sigma)}
+        return self._merge(dataclasses.replace(meta, robots=robots), world)
+
+    def _merge(self, meta: Meta, world: WorldModel) -> Meta:
+        world.use_prior(self.prior)
+        self.merged = True
+        return meta
+
+    @property
+    def _first_robot(self) -> str:
+        return self._first
+
+    def _keep_robot_frame(self, frame: Detections) -> None:
+        if not hasattr(self, "_first"):
+            self._first = frame.robot
+        if len(self._robot_xy) < 20_000:
+            self._robot_xy.extend(d.position() for d in frame.objects)
+
+    # ------------------------------------------------------------------- the end
+    def finish(self, world: WorldModel) -> Changes | None:
+        """After the world's last step: the saved plants kept, gone and unseen; new ones."""
+        if not self.merged:
+            return None
+        prior, backend = self.prior, world.backend
+        ids = prior.ids[world.objects.status[prior.ids] == STATUS_ACTIVE]  # not merged away
+        xy = backend.object_positions(ids)
+        poses = np.vstack(
+            [backend.trajectory(r)[1] for r, chain in world.robots.items() if chain.started]
+        )
+        area = ViewArea.learned(np.array(self._robot_xy).reshape(-1, 2), self.cfg.view_margin)
+        new = world.active_ids()
+        new = new[new > prior.ids.max()]
+        frames = world.objects.n_frames
+        fresh = (new, backend.object_positions(new), frames[new])
+        self.changes = find_changes(ids, xy, frames[ids], fresh, poses, area, self.cfg)
+        if len(self.changes.gone):  # not deleted: out of the map, in its history as gone
+            world.objects.retire(self.changes.gone, STATUS_GONE)
+        return self.changes
+
+    def summary(self) -> dict[str, object]:
+        """The run's season section of metrics.json."""
+        return {
+            "survey": self.prior.survey,
+            "localised": self.merged,
+            "localised_after_s": self.localised_after,
+            "fix": None
+            if self.fix is None or not self.fix.localised
+            else self.fix.transform.tolist(),
+            "tries": [{"driven_s": d, "outcome": r} for d, r in self.tries],
+            "start_check": self.start_check,
+            "changes": None if self.changes is None else self.changes.as_dict(),
+        }
+
+
+def _cluster_mean(values: np.ndarray, label: np.ndarray, k: int) -> np.ndarray:
+    """(k, n) mean of the per-detection rows `values` (m, n) over each cluster."""
+    out = np.zeros((k, values.shape[1]))
+    np.add.at(out, label[: len(values)], values)
+    return out / np.maximum(np.bincount(label[: len(values)], minlength=k), 1)[:, None]

@@ -1,0 +1,281 @@
+"""Issue 15: re-localisation in a saved map (and refusal in a wrong one), the prior's
+GTSAM factor, the history tables written and read back, survey_start in the log."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from agrislam.config import AgrislamConfig, RowsConfig, SeasonConfig, SlamConfig
+from agrislam.geometry.backend import make_backend
+from agrislam.geometry.graph import PRIOR_POINT
+from agrislam.prior.relocalise import Relocaliser, cluster, rigid_fit
+from agrislam.records import Meta
+from agrislam.sinks.history import History, plant_rows, read_history, write_history
+from agrislam.sinks.log_lines import record_to_json
+from agrislam.sources.jsonl import _survey_start
+
+
+def _field(seed: int) -> np.ndarray:
+    """Rows 1 m apart of plants 0.4-0.5 m apart (the simulator's layout)."""
+    rng = np.random.default_rng(seed)
+    rows = [
+        np.column_stack([np.cumsum(rng.uniform(0.4, 0.5, 40)), np.full(40, float(k))])
+        for k in range(10)
+    ]
+    return np.vstack(rows) + rng.normal(0, 0.01, (400, 2))
+
+
+def _seen_from(field: np.ndarray, pose: np.ndarray, rng) -> np.ndarray:
+    """The plants within 2.5 m of x in [2, 16] on row lane 3.5, in the frame of `pose`."""
+    near = (field[:, 0] > 2) & (field[:, 0] < 16) & (np.abs(field[:, 1] - 3.5) < 2.0)
+    local = field[near]
+    c, s = np.cos(pose[2]), np.sin(pose[2])
+    d = local - pose[:2]
+    xy = np.column_stack([c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1]])
+    return xy + rng.normal(0, 0.015, xy.shape)
+
+
+def test_relocaliser_finds_the_place_despite_periodic_rows():
+    field, rng = _field(1), np.random.default_rng(3)
+    pose = np.array([3.0, 3.5, 0.3])
+    local = _seen_from(field, pose, rng)
+    reloc = Relocaliser(field, SeasonConfig())
+    fix = reloc.locate(local, np.full(len(local), 3))
+    assert fix.localised, fix.reason
+    assert np.allclose(fix.transform[:2], pose[:2], atol=0.05)
+    assert abs(fix.transform[2] - pose[2]) < 0.02
+
+
+def test_relocaliser_refuses_another_field():
+    local = _seen_from(_field(1), np.array([3.0, 3.5, 0.3]), np.random.default_rng(3))
+    other = Relocaliser(_field(2), SeasonConfig()).locate(local, np.full(len(local), 3))
+    assert not other.localised and other.reason.startswith("not localised yet")
+
+
+def test_relocaliser_waits_for_enough_plants():
+    fix = Relocaliser(_field(1), SeasonConfig()).locate(np.zeros((3, 2)), np.full(3, 5))
+    assert not fix.localised and "needed" in fix.reason
+
+
+def test_cluster_and_rigid_fit():
+    xy = np.array([[0, 0], [0.05, 0], [1, 1], [1.02, 1.0], [3, 0]], float)
+    means, counts, _ = cluster(xy, 0.1)
+    assert sorted(counts.tolist()) == [1, 2, 2]
+    assert any(np.allclose(m, [1.01, 1.0]) for m in means)
+    src = np.random.default_rng(0).uniform(-3, 3, (10, 2))
+    t = np.array([1.0, -2.0, 0.7])
+    c, s = np.cos(t[2]), np.sin(t[2])
+    dst = src @ np.array([[c, -s], [s, c]]).T + t[:2]
+    assert np.allclose(rigid_fit(src, dst), t)
+
+
+def test_prior_point_factor_holds_an_object_in_gtsam():
+    backend = make_backend(SlamConfig(), RowsConfig(enabled=False))
+    backend.add_robot("r", np.zeros(3), np.full(3, 0.01), 0.0)
+    backend.add_object(5, np.array([1.0, 2.0]))
+    backend.add_object_prior(5, np.array([1.0, 2.0]), np.diag([0.04, 0.09]))
+    backend.update()
+    assert any(f.kind == PRIOR_POINT for f in backend.graph.factors.values())
+    assert np.allclose(backend.object_positions(np.array([5])), [[1.0, 2.0]])
+    assert np.allclose(
+        backend.object_covariances(np.array([5]))[0], np.diag([0.04, 0.09]), atol=1e-6
+    )
+
+
+def test_history_tables_round_trip(tmp_path):
+    import sqlite3
+
+    path = tmp_path / "map.sqlite"
+    sqlite3.connect(path).close()
+    rows = plant_rows(
+        1,
+        np.array([3, 4]),
+        ["seen", "gone"],
+        np.ones((2, 2)),
+        np.tile(np.eye(2), (2, 1, 1)),
+        np.array([5, 2]),
+        np.array([0.1, 0.2]),
+        np.array([np.nan, 0.97]),
+        {"length": np.array([[0.2, 0.01], [0.3, 0.02]])},
+    )
+    write_history(path, History([(0, 100.0, 0, "{}"), (1, 700.0, 1, "{}")], rows))
+    back = read_history(path)
+    assert back.next_survey == 2 and back.t_abs() == 700.0
+    gone = back.plant(4)[0]
+    assert gone["status"] == "gone" and gone["p_gone"] == pytest.approx(0.97)
+    assert gone["beliefs"]["length"] == [0.3, 0.02]
+
+
+def test_survey_start_is_written_and_read_as_utc():
+    line = record_to_json(Meta(survey_start=1_775_030_400.0))
+    assert line["survey_start"] == "2026-04-01T08:00:00Z"
+    assert _survey_start(line) == 1_775_030_400.0
+    assert _survey_start({}) is None
+    with pytest.raises(Exception, match="time zone"):
+        _survey_start({"survey_start": "2026-04-01T08:00:00"})
+
+
+def test_config_has_a_season_section():
+    assert AgrislamConfig().season.max_ambiguity < 1.0
+
+
+# ------------------------------------------------------------------ the prior in the world
+
+
+def _prior_schema():
+    from agrislam.config import FieldSchema
+
+    growth = {"kind": "growth", "rate_per_day": 0.04, "l_max": 0.6, "variance_per_day": 1e-4}
+    return FieldSchema.model_validate(
+        {
+            "attributes": {
+                "size": {"kind": "discrete", "values": ["s", "m", "b"], "time_model": growth},
+                "length": {"kind": "continuous", "min": 0.0, "max": 0.6, "time_model": growth},
+            }
+        }
+    )
+
+
+def _prior(t_abs: float = 1.7e9):
+    from agrislam.prior.map import PriorMap
+
+    ids = np.array([0, 2, 5])
+    return PriorMap(
+        schema=_prior_schema(),
+        ids=ids,
+        xy=np.array([[0.0, 0.0], [1.0, 0.0], [2.0, 0.5]]),
+        cov=np.tile(np.eye(2) * 0.01, (3, 1, 1)),
+        n_meas=np.array([4, 5, 6]),
+        discrete={"size": np.array([[0.8, 0.1, 0.1], [0.1, 0.8, 0.1], [0.2, 0.3, 0.5]])},
+        continuous={"length": (np.array([0.1, 0.2, 0.3]), np.array([0.01, 0.01, 0.02]))},
+        t_abs=t_abs,
+    )
+
+
+def test_world_takes_the_prior_with_ids_and_beliefs_carried_by_app_b():
+    from agrislam.config import SECONDS_PER_DAY
+    from agrislam.semantics.growth import grown_mean, grown_variance, transition_matrix
+    from agrislam.snapshot import STATUS_ACTIVE
+    from agrislam.world import WorldModel
+
+    prior = _prior()
+    world = WorldModel(AgrislamConfig())
+    world.use_prior(prior)
+    dt = 7 * SECONDS_PER_DAY
+    world.configure(Meta(schema=prior.schema, survey_start=prior.t_abs + dt))
+    assert world.active_ids().tolist() == [0, 2, 5]  # ids kept, rows between retired
+    assert (world.objects.status[[1, 3, 4]] != STATUS_ACTIVE).all()
+    model = prior.schema.discrete["size"].time_model
+    a = transition_matrix(3, model, dt)
+    assert np.allclose(world.beliefs.probabilities("size", [2], 0.0)[0], a @ [0.1, 0.8, 0.1])
+    mean, var = world.beliefs.gaussian("length", [5], 0.0)
+    assert mean[0] == pytest.approx(grown_mean(np.array(0.3), model, dt))
+    assert var[0] == pytest.approx(grown_variance(np.array(0.02), model, dt))
+    snap = world.snapshot(t=0.0, with_surface=False)
+    assert np.allclose(snap.objects.xy, prior.xy)  # held plants answer from the saved map
+
+
+def test_a_held_plant_enters_the_graph_with_its_saved_prior_when_seen():
+    from agrislam.geometry.backend import RelativePosition
+    from agrislam.prior.backend import PriorBackend
+
+    prior = _prior()
+    inner = make_backend(SlamConfig(), RowsConfig(enabled=False))
+    backend = PriorBackend(inner, prior.ids, prior.xy, prior.cov)
+    backend.add_robot("r", np.array([-1.0, 0.0, 0.0]), np.full(3, 0.01), 0.0)
+    assert backend.held(np.array([0, 2])).all()
+    z = RelativePosition(xy=np.array([2.0, 0.0]), cov=np.eye(2) * 1e-4)
+    backend.add_observation("r", 2, z)
+    backend.update()
+    assert not backend.held(np.array([2]))[0] and backend.entered == {2}
+    kinds = [f.kind for f in inner.graph.factors.values()]
+    assert kinds.count(PRIOR_POINT) == 1
+    assert np.allclose(
+        backend.object_positions(np.array([2, 5])), [[1.0, 0.0], [2.0, 0.5]], atol=0.02
+    )
+
+
+def test_changes_by_the_binomial_posterior():
+    from agrislam.prior.changes import ViewArea, find_changes
+
+    poses = np.column_stack([np.linspace(0, 10, 51), np.zeros(51), np.zeros(51)])
+    area = ViewArea((0.3, 2.0), (-0.7, 0.7))
+    saved = np.array([[5.0, 0.5], [6.0, 0.5], [7.0, -0.5], [5.0, 30.0]])
+    seen = np.array([9, 1, 0, 0])  # there; one stray detection; none; never in view
+    new = (np.array([10, 11]), np.array([[8.0, 0.3], [9.0, 0.2]]), np.array([8, 1]))
+    ch = find_changes(np.arange(4), saved, seen, new, poses, area, SeasonConfig())
+    assert ch.kept.tolist() == [0] and ch.gone.tolist() == [1, 2] and ch.unseen.tolist() == [3]
+    assert (ch.p_gone > 0.95).all()
+    assert ch.new.tolist() == [10] and ch.unconfirmed.tolist() == [11]
+
+
+def test_season_simulator_removes_plants_adds_weeds_and_hides_the_start():
+    from agrislam.sim.config import SimConfig
+    from agrislam.sim.season import SeasonSimulator, season_config
+
+    sim = SeasonSimulator(season_config(SimConfig(seed=3), [0, 7]), removed=0.1, weeds=5)
+    before, after = set(sim.fields[0].ids), set(sim.fields[1].ids)
+    assert 20 < len(before - after) < 70 and len(after - before) == 5
+    assert (sim.fields[1].length[:10] >= 0).all()
+    meta = next(iter(sim.day_records(1)))
+    assert meta.robots == {} and meta.survey_start is not None
+    assert sim.entry[1] > 0.0
+
+
+def test_history_command_prints_surveys_and_a_plant(tmp_path):
+    from typer.testing import CliRunner
+
+    from agrislam.cli import app
+    from agrislam.sinks.sqlite import save_map
+    from agrislam.snapshot import MapSnapshot, ObjectMap
+
+    schema = _prior_schema()
+    snap = MapSnapshot(
+        schema=schema,
+        objects=ObjectMap(
+            ids=np.array([3]),
+            xy=np.zeros((1, 2)),
+            cov=np.eye(2)[None],
+            n_meas=np.array([2]),
+            interest=np.zeros(1),
+            row=np.array([-1]),
+            discrete={"size": np.array([[0.1, 0.2, 0.7]])},
+            continuous={"length": (np.array([0.3]), np.array([0.01]))},
+        ),
+        trajectories={},
+        dead_reckoning={},
+    )
+    path = save_map(snap, tmp_path / "map.sqlite")
+    beliefs = {"size": np.array([[0.1, 0.2, 0.7]]), "length": np.array([[0.3, 0.01]])}
+    rows = [
+        *plant_rows(
+            0,
+            np.array([3]),
+            ["first"],
+            np.zeros((1, 2)),
+            np.eye(2)[None],
+            np.array([1]),
+            np.zeros(1),
+            np.full(1, np.nan),
+            beliefs,
+        ),
+        *plant_rows(
+            1,
+            np.array([3]),
+            ["seen"],
+            np.zeros((1, 2)),
+            np.eye(2)[None],
+            np.array([2]),
+            np.zeros(1),
+            np.full(1, np.nan),
+            beliefs,
+        ),
+    ]
+    write_history(path, History([(0, 0.0, 0, "{}"), (1, 7 * 86400.0, 1, "{}")], rows))
+    runner = CliRunner()
+    result = runner.invoke(app, ["history", str(path), "--plot", str(tmp_path / "h.png")])
+    assert result.exit_code == 0, result.output
+    assert "7.0" in result.output and (tmp_path / "h.png").stat().st_size > 10_000
+    result = runner.invoke(app, ["history", str(path), "--plant", "3"])
+    assert result.exit_code == 0 and "size b 0.70" in result.output
