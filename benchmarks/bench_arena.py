@@ -38,8 +38,11 @@ from agrislam.world import StepReport, WorldModel
 
 VARIANTS: dict[str, dict[str, Any]] = {
     "agrislam": {},
-    # the paper's association, pinned: it stays the baseline when the defaults change
-    "paper's gate": {"association": {"innovation_gate": False, "gate_chi2": 1.0}},
+    # the paper's association and noise as logged, pinned: the baseline when defaults change
+    "paper's gate": {
+        "association": {"innovation_gate": False, "gate_chi2": 1.0, "landmark_defaults": False},
+        "sensor": {"calibration": {"enabled": False}},
+    },
     "innovation gate": {"association": {"innovation_gate": True, "gate_chi2": 9.21}},
 }
 # a landmark counts as mapped if an object lies within this of it (one to one: the most
