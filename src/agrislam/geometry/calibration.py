@@ -11,9 +11,11 @@ a static object rightly paired,
 with R the configured detection covariances, dC the parts of the chain's prefix sum that
 the configured odometry's translation and heading noise build, J the point Jacobian at
 p_now, and v the variance factors this module estimates: the maximum-likelihood variance
-components, by Fisher scoring, over the pairs the run has seen, with the pairs an outlier
-test refuses (a wrong association, a moved object) left out. The configured values are the
-starting point (v = 1) and the factors are bounded, so a run with few pairs keeps them.
+components, by Fisher scoring, over the pairs the run has seen, each weighted by how likely
+it is to be no outlier (a wrong association, a moved object: EM with a uniform outlier
+component). By default one factor scales translation and heading (`tie_odometry`). The
+configured values are the starting point (v = 1) and the factors are bounded (by default
+they only inflate), so a run with few pairs keeps them.
 """
 
 from __future__ import annotations
