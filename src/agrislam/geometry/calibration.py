@@ -183,13 +183,21 @@ def det2(cov: np.ndarray) -> np.ndarray:
 def fisher_step(d: np.ndarray, comps: np.ndarray, v: np.ndarray, weight: np.ndarray) -> np.ndarray:
     """One Fisher-scoring step of the variance components v of Cov(d) = sum_c v_c A_c,
     each pair weighted: the score g_c = 1/2 sum w (d^T S^-1 A_c S^-1 d - tr(S^-1 A_c))
-    and the information F_cb = 1/2 sum w tr(S^-1 A_c S^-1 A_b), S = sum_c v_c A_c."""
-    s_inv = np.linalg.inv(np.einsum("c,ncij->nij", v, comps))
-    x = np.einsum("nij,nj->ni", s_inv, d)  # S^-1 d
-    sa = np.einsum("nij,ncjk->ncik", s_inv, comps)  # S^-1 A_c
-    quadratic = np.einsum("ni,ncij,nj->nc", x, comps, x)
-    score = 0.5 * weight @ (quadratic - np.einsum("ncii->nc", sa))
-    information = 0.5 * np.einsum("n,ncij,nbji->cb", weight, sa, sa)
+    and the information F_cb = 1/2 sum w tr(S^-1 A_c S^-1 A_b), S = sum_c v_c A_c.
+    On the entries of the symmetric 2x2 matrices, so that an estimate over `max_pairs`
+    pairs stays within a step's budget (issue 14)."""
+    a, b, c = comps[..., 0, 0], comps[..., 0, 1], comps[..., 1, 1]  # (n, C) each A_c
+    s_a, s_b, s_c = a @ v, b @ v, c @ v
+    det = s_a * s_c - s_b * s_b
+    p, q, r = s_c / det, -s_b / det, s_a / det  # S^-1
+    x0, x1 = p * d[:, 0] + q * d[:, 1], q * d[:, 0] + r * d[:, 1]  # S^-1 d
+    quadratic = a * (x0 * x0)[:, None] + 2 * b * (x0 * x1)[:, None] + c * (x1 * x1)[:, None]
+    p, q, r = p[:, None], q[:, None], r[:, None]
+    m00, m01, m10, m11 = p * a + q * b, p * b + q * c, q * a + r * b, q * b + r * c  # S^-1 A_c
+    score = 0.5 * weight @ (quadratic - m00 - m11)
+    w = weight[:, None]
+    information = 0.5 * ((w * m00).T @ m00 + (w * m01).T @ m10 + (w * m10).T @ m01)
+    information += 0.5 * (w * m11).T @ m11
     information += 1e-9 * np.trace(information) * np.eye(len(v))
     return np.linalg.solve(information, score)
 
