@@ -8,7 +8,7 @@ import numpy as np
 
 from agrislam.config import AgrislamConfig, RowsConfig, SlamConfig
 from agrislam.geometry.backend import RelativePosition, detection_covariance, make_backend
-from agrislam.geometry.conditioning import FREE_SIGMA, component, indeterminate_key
+from agrislam.geometry.conditioning import FREE_SIGMA, components, indeterminate_key
 from agrislam.pipeline import run_survey
 from agrislam.sim.arena import ArenaSimulator
 from agrislam.sim.config import ArenaConfig
@@ -25,10 +25,12 @@ def test_component_keeps_the_factors_connected_to_the_seed_in_order():
     graph.push_back(gtsam.BetweenFactorPose2(10, 11, gtsam.Pose2(), noise))  # another robot
     graph.push_back(gtsam.BetweenFactorPose2(3, 2, gtsam.Pose2(), noise))
     graph.push_back(gtsam.PriorFactorPose2(11, gtsam.Pose2(), noise))
-    local, nodes = component(graph, 3)
+    parts = components(graph)
+    local, nodes = parts[3]
     assert nodes == {1, 2, 3}
     assert [tuple(local.at(n).keys()) for n in range(local.size())] == [(1, 2), (3, 2)]
-    assert component(graph, 11)[1] == {10, 11}
+    assert parts[11][1] == {10, 11}
+    assert parts[1] is parts[2]  # one part, found once
 
 
 def test_indeterminate_key_reads_the_node_gtsam_names():

@@ -12,14 +12,21 @@ from collections.abc import Callable
 from typing import TypeVar
 
 import gtsam
+import numpy as np
+import scipy.sparse as sp
+from scipy.linalg import solve_triangular
+from threadpoolctl import ThreadpoolController
 
 from agrislam.geometry.graph import POSE, key_kind
 
 T = TypeVar("T")
+_BLAS = ThreadpoolController()
 
 # conditioning on a keyframe: its prior (m, rad); others only kept from floating away
 FIXED_SIGMA = 1e-4
 FREE_SIGMA = 10.0
+# a covariance entry past this (m^2) is no measurement's: the node is indeterminate
+INDETERMINATE = 1e6
 
 
 def shared_copy(graph: gtsam.NonlinearFactorGraph) -> gtsam.NonlinearFactorGraph:
@@ -45,6 +52,70 @@ def conditioned(
             noise = gtsam.noiseModel.Isotropic.Sigma(2, sigma)
             out.push_back(gtsam.PriorFactorPoint2(key, point.atPoint2(key), noise))
     return out
+
+
+def marginal_covariances(
+    graph: gtsam.NonlinearFactorGraph, point: gtsam.Values, keys: list[int]
+) -> list[np.ndarray]:
+    """Marginal covariances of the 2-D nodes `keys` (objects, none tied to another) of a
+    solvable `graph` at `point`, by the Schur complement onto the other nodes: with H
+    the information matrix, objects l and the rest p, S = H_pp - H_pl H_ll^-1 H_lp and
+    cov(l_i) = H_ii^-1 + H_ii^-1 H_ip S^-1 H_pi H_ii^-1 (a `gtsam.Marginals` query per
+    object costs a Bayes-tree shortcut each: most of a keyframe fold). Where objects are
+    tied or the system is singular, GTSAM's own marginals decide (and name the node)."""
+    order = sorted(graph.keyVector())  # the matrix's columns: nodes in key order
+    dims = np.array([3 if key_kind(key) == POSE else 2 for key in order])
+    start = dict(zip(order, np.cumsum(dims) - dims, strict=True))
+    information = information_matrix(graph, point, int(dims.sum()))
+    objects = np.concatenate([start[key] + np.arange(2) for key in keys])
+    rest = np.setdiff1d(np.arange(int(dims.sum())), objects)
+    h_ll = information[objects][:, objects].toarray()
+    blocks = h_ll.reshape(len(keys), 2, len(keys), 2)
+    own = blocks[np.arange(len(keys)), :, np.arange(len(keys)), :]  # (k, 2, 2)
+    tied = np.abs(h_ll).sum() - np.abs(own).sum() > 1e-9 * np.abs(own).sum()
+    # a few hundred rows of dense algebra: one BLAS thread (more spin on a busy machine)
+    with np.errstate(all="ignore"), _BLAS.limit(limits=1, user_api="blas"):
+        covs = None if tied else _schur_covariances(information, objects, rest, own)
+    if covs is not None and _measured(covs):
+        return list(covs)
+    marginals = gtsam.Marginals(graph, point)
+    return [marginals.marginalCovariance(key) for key in keys]
+
+
+def information_matrix(
+    graph: gtsam.NonlinearFactorGraph, point: gtsam.Values, size: int
+) -> sp.csr_matrix:
+    """J^T J (size, size) of the graph linearised at `point`, columns in key order."""
+    jacobian = graph.linearize(point).sparseJacobian_()  # 1-based [row, column, value]
+    row, col, value = jacobian[0] - 1, jacobian[1] - 1, jacobian[2]
+    inside = col < size  # not the right-hand side, the last column
+    shape = (int(row.max()) + 1, size)
+    a = sp.csr_matrix((value[inside], (row[inside], col[inside])), shape=shape)
+    return (a.T @ a).tocsr()
+
+
+def _measured(covs: np.ndarray) -> bool:
+    """Whether 2x2 matrices are finite, bounded (not indeterminate) and positive definite."""
+    if not (np.isfinite(covs).all() and (np.abs(covs) < INDETERMINATE).all()):
+        return False
+    return bool((np.linalg.eigvalsh(covs) > 0).all())
+
+
+def _schur_covariances(
+    information: sp.csr_matrix, objects: np.ndarray, rest: np.ndarray, own: np.ndarray
+) -> np.ndarray | None:
+    """(k, 2, 2) the objects' marginal covariances (`marginal_covariances`), or None
+    where an object's own block or the reduced system is singular."""
+    count, size = len(own), len(rest)
+    try:
+        own_inv = np.linalg.inv(own)
+        h_lp = information[objects][:, rest].toarray()  # (2k, p)
+        w = (own_inv @ h_lp.reshape(count, 2, size)).reshape(-1, size)  # H_ii^-1 H_ip
+        factor = np.linalg.cholesky(information[rest][:, rest].toarray() - h_lp.T @ w)
+    except np.linalg.LinAlgError:
+        return None
+    half = solve_triangular(factor, w.T, lower=True).T.reshape(count, 2, size)  # (L^-1 W^T)^T
+    return own_inv + half @ half.swapaxes(1, 2)
 
 
 def indeterminate_key(err: RuntimeError) -> int | None:
@@ -83,12 +154,12 @@ def isolating(
             issues[f"{kind} held by a weak prior: indeterminate in {what}"] += 1
 
 
-def component(
-    graph: gtsam.NonlinearFactorGraph, seed: int
-) -> tuple[gtsam.NonlinearFactorGraph, set[int]]:
-    """The factors of `graph` connected to node `seed` (in their order) and their nodes:
-    with several robots, the part of a window that another robot's keyframe does not
-    reach has no gauge of its own when conditioned on this one."""
+def components(
+    graph: gtsam.NonlinearFactorGraph,
+) -> dict[int, tuple[gtsam.NonlinearFactorGraph, set[int]]]:
+    """Each node of `graph` -> the factors connected to it (in their order) and their
+    nodes: with several robots, the part of a window that another robot's keyframe does
+    not reach has no gauge of its own when conditioned on this one."""
     parent: dict[int, int] = {}
 
     def root(key: int) -> int:
@@ -100,9 +171,10 @@ def component(
     for factor_keys in keys:
         for key in factor_keys[1:]:
             parent[root(key)] = root(factor_keys[0])
-    mine = root(seed)
-    out = gtsam.NonlinearFactorGraph()
+    parts: dict[int, tuple[gtsam.NonlinearFactorGraph, set[int]]] = {}
+    for key in parent:
+        parts.setdefault(root(key), (gtsam.NonlinearFactorGraph(), set()))[1].add(key)
     for n, factor_keys in enumerate(keys):
-        if factor_keys and root(factor_keys[0]) == mine:
-            out.push_back(graph.at(n))
-    return out, {key for key in parent if root(key) == mine}
+        if factor_keys:
+            parts[root(factor_keys[0])][0].push_back(graph.at(n))
+    return {key: parts[root(key)] for key in parent}

@@ -32,9 +32,10 @@ from agrislam.geometry.base import BackendBase, pose_array
 from agrislam.geometry.batch import insert_value, solve, value_array
 from agrislam.geometry.conditioning import (
     FREE_SIGMA,
-    component,
+    components,
     conditioned,
     isolating,
+    marginal_covariances,
     shared_copy,
 )
 from agrislam.geometry.drift import adjoint
@@ -300,8 +301,9 @@ class IncrementalBackend(BackendBase):
         factors = self._isam.getFactorsUnsafe()
         for slot in self._slots.inside(set(blanket)):
             around.push_back(factors.at(slot))
+        parts = components(around)
         for keyframe, keys in anchored.items():
-            covs = self._given(keyframe, keys, around, point, blanket)
+            covs = self._given(keyframe, keys, parts[keyframe], point, blanket)
             kf_pose = value_array(point, keyframe)
             rot = rotation(kf_pose[2])
             for key, cov in zip(keys, covs, strict=True):
@@ -312,19 +314,18 @@ class IncrementalBackend(BackendBase):
         self,
         keyframe: int,
         keys: list[int],
-        around: gtsam.NonlinearFactorGraph,
+        part: tuple[gtsam.NonlinearFactorGraph, set[int]],
         point: gtsam.Values,
         blanket: list[int],
     ) -> list[np.ndarray]:
-        """Map-frame covariances of objects `keys` given `keyframe`, from the part of
-        `around` connected to it; should even that fail, the objects keep a covariance
-        of FREE_SIGMA and the run goes on."""
-        local, nodes = component(around, keyframe)
+        """Map-frame covariances of objects `keys` given `keyframe`, from the `part` of
+        the graph around connected to it (its factors and nodes); should even that fail,
+        the objects keep a covariance of FREE_SIGMA and the run goes on."""
+        local, nodes = part
         free = [k for k in blanket if k in nodes]
 
         def covariances(graph: gtsam.NonlinearFactorGraph) -> list[np.ndarray]:
-            marginals = gtsam.Marginals(graph, point)
-            return [marginals.marginalCovariance(key) for key in keys]
+            return marginal_covariances(graph, point, keys)
 
         graph = conditioned(local, point, keyframe, free)
         try:
