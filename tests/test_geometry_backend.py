@@ -432,3 +432,15 @@ def test_a_graph_above_the_batch_limit_refines_its_folded_keyframe_graph(small_s
         maps[name] = b.positions(g, ids)
     gap = [np.linalg.norm(maps["bounded"][k] - maps["batch"][k]) for k in maps["batch"]]
     assert np.sqrt(np.mean(np.square(gap))) < 0.05
+
+
+def test_object_keys_are_gtsams_symbols_and_unknown_ids_are_named():
+    from agrislam.geometry.graph import SurveyGraph, object_key, object_keys
+
+    ids = np.array([0, 7, 123_456_789])
+    assert object_keys(ids) == [object_key(int(i)) for i in ids]
+    graph = SurveyGraph()
+    graph.add_object(7, np.zeros(2))
+    assert graph.require_objects(np.array([7])) == [object_key(7)]
+    with pytest.raises(KeyError, match="object 8 "):
+        graph.require_objects(np.array([7, 8]))

@@ -39,6 +39,12 @@ def object_key(object_id: int) -> int:
     return gtsam.symbol(OBJECT, int(object_id))
 
 
+def object_keys(object_ids: np.ndarray) -> list[int]:
+    """`object_key` of many ids at once (GTSAM's symbol: the letter in the top byte)."""
+    ids = np.asarray(object_ids, dtype=np.uint64)
+    return ((np.uint64(ord(OBJECT)) << np.uint64(56)) | ids).tolist()
+
+
 def row_key(row: int) -> int:
     return gtsam.symbol(ROW, int(row))
 
@@ -117,6 +123,13 @@ class SurveyGraph:
         if object_id not in self.objects:
             raise KeyError(f"object {object_id} is not in the graph")
         return object_key(object_id)
+
+    def require_objects(self, object_ids: np.ndarray) -> list[int]:
+        """`require_object` of many ids at once."""
+        missing = [i for i in np.asarray(object_ids).tolist() if i not in self.objects]
+        if missing:
+            raise KeyError(f"object {missing[0]} is not in the graph")
+        return object_keys(object_ids)
 
     def require_row(self, row: int) -> int:
         if row not in self.rows:

@@ -477,7 +477,7 @@ class IncrementalBackend(BackendBase):
 
     def _split(self, object_ids: np.ndarray) -> tuple[np.ndarray, list[int]]:
         """The retired-object row of each object (-1: live) and the keys of the live ones."""
-        keys = [self.graph.require_object(int(i)) for i in object_ids]
+        keys = self.graph.require_objects(object_ids)
         rows = self._retired_objects.rows(keys)
         return rows, [k for k, r in zip(keys, rows.tolist(), strict=True) if r < 0]
 
@@ -505,8 +505,8 @@ class IncrementalBackend(BackendBase):
     def object_covariances(self, object_ids: np.ndarray) -> np.ndarray:
         """(k, 2, 2) marginal covariances of the given objects, cached until the next step;
         a retired object's combines its keyframe's and its relative position's."""
-        require, pending = self.graph.require_object, self._pending.guess
-        if any(pending(require(int(i))) is not None for i in object_ids):
+        pending = self._pending.guess
+        if any(pending(key) is not None for key in self.graph.require_objects(object_ids)):
             self._solve_pending()  # entered since the last update (a merge): solve them now
         rows, live = self._split(object_ids)
         retired, rows = rows >= 0, rows[rows >= 0]
