@@ -174,3 +174,20 @@ def test_innovation_covariance_takes_the_tighter_of_absolute_and_relative():
     # no pose marginal, no chain: K_n + R_m
     bare = PlacedDetections(np.zeros((1, 2)), r[None], [{}])
     assert innovation_covariance(bare, object_cov)[0, 1] == pytest.approx(np.diag([0.5, 0.5]))
+
+
+def test_spatial_index_builds_from_the_positions_it_was_told_and_sweeps_in_turn():
+    index = SpatialIndex(margin=0.0, sweep_steps=3)
+    index.move(np.array([0, 1]), np.array([[0.0, 0.0], [5.0, 0.0]]))
+    index.settle(np.array([1]), np.array([[9.0, 0.0]]))  # moved, read in a sweep
+    index.rebuild()  # no positions given: the ones known, nothing from the back end
+    assert index.n_fresh == 0
+    assert index.query(np.array([[9.0, 0.0]]), 0.1).tolist() == [1]
+    assert index.query(np.array([[5.0, 0.0]]), 0.1).tolist() == []
+    index.forget(np.array([1]))
+    index.rebuild()
+    assert index.query(np.array([[9.0, 0.0]]), 0.1).tolist() == []
+    active = np.arange(7)
+    turns = [index.due(active).tolist() for _ in range(4)]
+    assert turns[:3] == [[0, 1, 2], [3, 4, 5], [6]]  # every object once in 3 calls
+    assert turns[3] == [0, 1, 2]

@@ -182,19 +182,29 @@ def max_association_distance(
 
 
 class SpatialIndex:
-    """KD-tree over object positions, rebuilt by the caller now and then; objects added or
-    moved since the last build are searched directly. Every query is widened by `margin`,
-    the distance the map may have moved an object since the build."""
+    """KD-tree over object positions: it keeps each object's last known position (by id)
+    and builds its tree from them now and then; objects added or moved since the last
+    build are searched directly. Every query is widened by `margin`, the distance the map
+    may have moved an object since the build. Building reads nothing from the back end,
+    so its cost is the tree's alone."""
 
-    def __init__(self, margin: float = 0.3) -> None:
+    def __init__(self, margin: float = 0.3, sweep_steps: int = 500) -> None:
         self.margin = margin
+        self.sweep_steps = sweep_steps
+        self._sweep_at = 0
         self._tree: cKDTree | None = None
         self._tree_ids = np.empty(0, dtype=int)
         self._fresh: dict[int, np.ndarray] = {}
+        self._xy = np.full((0, 2), np.nan)  # row = object id; NaN: not indexed
 
-    def rebuild(self, ids: np.ndarray, xy: np.ndarray) -> None:
-        self._tree = cKDTree(xy) if len(ids) else None
-        self._tree_ids = np.asarray(ids, dtype=int)
+    def rebuild(self, ids: np.ndarray | None = None, xy: np.ndarray | None = None) -> None:
+        """Build the tree from the positions known (given `ids` and `xy`: from those
+        alone, forgetting every other object)."""
+        if ids is not None and xy is not None:
+            self._xy[:] = np.nan
+            self.settle(ids, xy)
+        self._tree_ids = np.flatnonzero(~np.isnan(self._xy[:, 0]))
+        self._tree = cKDTree(self._xy[self._tree_ids]) if len(self._tree_ids) else None
         self._fresh.clear()
 
     @property
@@ -202,13 +212,37 @@ class SpatialIndex:
         return len(self._fresh)
 
     def move(self, ids: np.ndarray, xy: np.ndarray) -> None:
-        """Objects just added, or whose estimate was just refreshed."""
-        for i, p in zip(ids.tolist(), xy, strict=True):
+        """Objects just added, or whose estimate was just refreshed: searched directly."""
+        self.settle(ids, xy)
+        for i, p in zip(np.asarray(ids).tolist(), xy, strict=True):
             self._fresh[i] = p
 
+    def settle(self, ids: np.ndarray, xy: np.ndarray) -> None:
+        """New positions of objects that moved little (less than `margin` since the
+        last build): the next build uses them."""
+        ids = np.asarray(ids, dtype=int)
+        if len(ids) and ids.max() >= len(self._xy):
+            grown = np.full((max(int(ids.max()) + 1, 2 * len(self._xy)), 2), np.nan)
+            grown[: len(self._xy)] = self._xy
+            self._xy = grown
+        self._xy[ids] = xy
+
+    def due(self, active: np.ndarray) -> np.ndarray:
+        """The share of the `active` objects whose positions are to be read again this
+        step (and `settle`d), in turn: every one once in `sweep_steps` calls. Objects not
+        seen move only with the map's keyframes; reading all at once would stall a step."""
+        if not len(active):
+            return active
+        size = -(-len(active) // self.sweep_steps)
+        start = self._sweep_at if self._sweep_at < len(active) else 0
+        self._sweep_at = start + size
+        return active[start : start + size]
+
     def forget(self, ids: np.ndarray) -> None:
-        for i in np.atleast_1d(ids).tolist():
+        ids = np.atleast_1d(ids)
+        for i in ids.tolist():
             self._fresh.pop(i, None)
+        self._xy[ids[ids < len(self._xy)]] = np.nan
         if len(self._tree_ids):
             self._tree_ids = np.where(np.isin(self._tree_ids, ids), -1, self._tree_ids)
 

@@ -353,6 +353,13 @@ class AssociationConfig(_Strict):
         0.3, ge=0.0, description="m an estimate may move between spatial index rebuilds"
     )
     index_rebuild_steps: int = Field(50, ge=1, description="steps between index rebuilds")
+    index_sweep_steps: int = Field(
+        100,
+        ge=1,
+        description="steps over which every object's position in the index is read again "
+        "once (a slice each step): objects not seen move only with the map's keyframes, "
+        "and reading all at once would stall a step on a large field",
+    )
 
 
 class SlamConfig(_Strict):

@@ -124,9 +124,10 @@ class WorldModel:
         self.objects = ObjectTable(BeliefTable(self.schema, self.config.semantics))
         self.backend = make_backend(self.config.slam, self.config.rows)
         self.rows = RowTracker(self.config.rows) if self.config.rows.enabled else None
-        self.index = SpatialIndex(self.association.index_margin)
+        self.index = SpatialIndex(self.association.index_margin, self.association.index_sweep_steps)
         self.objects.on_retire(self.index.forget)
         self._steps_since_rebuild = 0
+        self._index_refines = 0
         self.depth_bias = DepthBiasEstimator(self.config.sensor.depth_bias)
         self.anchor = None
         self.issues: Counter[str] = self.backend.issues  # with what the back end isolated
@@ -558,15 +559,21 @@ class WorldModel:
         return list(self.robots).index(name)
 
     def _refresh_index(self, touched: np.ndarray) -> None:
-        """Move the touched objects in the spatial index; rebuild it now and then."""
+        """Move the touched objects in the spatial index, read a slice of the others
+        again, and rebuild it now and then."""
         touched = self.objects.active(touched)
         if len(touched):
             self.index.move(touched, self.backend.object_positions(touched))
+        if self.backend.refines != self._index_refines:  # the whole map moved: read it all
+            self._index_refines, swept = self.backend.refines, self.active_ids()
+        else:
+            swept = self.index.due(self.active_ids())
+        if len(swept):
+            self.index.settle(swept, self.backend.object_positions(swept))
         self._steps_since_rebuild += 1
         cfg = self.association
         if self._steps_since_rebuild >= cfg.index_rebuild_steps or self.index.n_fresh > 500:
-            ids = self.active_ids()
-            self.index.rebuild(ids, self.backend.object_positions(ids))
+            self.index.rebuild()
             self._steps_since_rebuild = 0
 
     def _calibrate_depth(

@@ -75,6 +75,7 @@ class BackendBase:
         self.graph = SurveyGraph()
         # degenerate geometry the solver isolated instead of stopping the run, by reason
         self.issues: Counter[str] = Counter()
+        self.refines = 0  # whole-graph solves so far: each may move every estimate
 
     # ------------------------------------------------------------ solver hooks
     def _insert(self, key: int, value: np.ndarray) -> None:

@@ -94,7 +94,6 @@ class IncrementalBackend(BackendBase):
         self._folded_heading: dict[int, float] = {}  # keyframe -> heading when folded onto
         self._increments: dict[str, tuple[np.ndarray, np.ndarray]] = {}  # latest odometry
         self.rolls = 0
-        self.refines = 0
 
     # -------------------------------------------------------- pickle (checkpoints)
     def __getstate__(self) -> dict:
