@@ -18,7 +18,7 @@ from agrislam.config import AgrislamConfig, FieldSchema
 from agrislam.geometry import se2
 from agrislam.prior.changes import Changes, ViewArea, find_changes
 from agrislam.prior.map import PriorMap
-from agrislam.prior.relocalise import Fix, Relocaliser, cluster
+from agrislam.prior.relocalise import Fix, Relocaliser, cluster, detection_spread
 from agrislam.records import Detections, DiscreteMeasurement, Meta, Odometry, Record, RobotStart
 from agrislam.snapshot import STATUS_ACTIVE, STATUS_GONE
 from agrislam.world import WorldModel
@@ -45,7 +45,8 @@ class SeasonRun:
 
     def __init__(self, prior: PriorMap, config: AgrislamConfig) -> None:
         self.prior, self.config, self.cfg = prior, config, config.season
-        self.relocaliser = Relocaliser(prior.xy, self.cfg)
+        map_var = np.trace(prior.cov, axis1=1, axis2=2) / 2.0 if len(prior) else None
+        self.relocaliser = Relocaliser(prior.xy, self.cfg, map_var=map_var)
         self.fix: Fix | None = None
         self.tries: list[tuple[float, str]] = []  # (s driven, outcome) of every try
         self.localised_after: float | None = None  # s of driving until the fix
@@ -136,7 +137,8 @@ class SeasonRun:
             self.relocaliser.compatible = lambda rows, j: check(
                 {n: m[rows] for n, m in means.items()}, ids[j]
             )
-        self.fix = self.relocaliser.locate(local, counts)
+        spread = detection_spread(xy, local, counts, label)
+        self.fix = self.relocaliser.locate(local, counts, spread)
         self.tries.append((driven, self.fix.reason))
         if self.fix.localised:
             self.localised_after = driven
