@@ -6,7 +6,8 @@ Day 0 is mapped from nothing; days 7 and 14 continue the previous day's map.sqli
 Per seed and survey it prints: whether and when (s of driving) the robot was re-localised
 and how far the fix is from the truth; the share of re-observed plants that kept their
 id; precision and recall of the plants found gone (against the plants removed where the
-camera looked) and of the new plants (against the emerged weeds in view); the map's
+camera looked) and of the new plants (precision against every weed the saved map lacks,
+recall against those of them in view); the map's
 mapped fraction, position RMS and length RMS beside day 0's. Then the same first frames
 against a map of a different field (must refuse), and loading a 10,000-plant map.
 
@@ -167,17 +168,20 @@ def season(seed: int, out: Path) -> list[dict]:
             p, r = prf(gone, removed)
             row.update(gone_p=p, gone_r=r, n_removed=len(removed), n_gone=len(gone))
             row["gone_fobj"] = sum(int(o) not in prev_ids for o in ch.gone)
-            emerged_all = sorted(t.id for t in truth if t.id.startswith(f"w{d}_"))
+            # emerged weeds: every weed the saved map does not hold (since the last survey,
+            # or before it where that survey did not pass); recall counts those clearly in
+            # view, precision any of them (one seen only at the edge of view is no error)
+            emerged_all = sorted(
+                t.id for t in truth if t.id.startswith("w") and t.id not in mapped_before
+            )
             in_view = looked_at(
                 np.array([by_id[t].xy for t in emerged_all]).reshape(-1, 2), track, cfg
             )
-            emerged = (
-                {t for t, v in zip(emerged_all, in_view, strict=True) if v}
-                if emerged_all
-                else set()
-            )
+            emerged = {t for t, v in zip(emerged_all, in_view, strict=True) if v}
             new = {ids.get(int(o), f"?{o}") for o in ch.new}
-            p, r = prf(new, emerged)
+            hit = len(new & set(emerged_all))
+            p = hit / len(new) if new else 1.0
+            r = len(new & emerged) / len(emerged) if emerged else 1.0
             row.update(new_p=p, new_r=r, n_emerged=len(emerged), n_new=len(new))
         rows.append(row)
         prev_ids, prev_map = ids, out / f"s{seed}_d{d}" / "map.sqlite"
