@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from agrislam.config import AgrislamConfig, RowsConfig, SeasonConfig, SlamConfig
+from agrislam.geometry import se2
 from agrislam.geometry.backend import make_backend
 from agrislam.geometry.graph import PRIOR_POINT
 from agrislam.prior.relocalise import Relocaliser, cluster, detection_spread, rigid_fit
@@ -316,3 +317,56 @@ def test_history_command_prints_surveys_and_a_plant(tmp_path):
     assert "7.0" in result.output and (tmp_path / "h.png").stat().st_size > 10_000
     result = runner.invoke(app, ["history", str(path), "--plant", "3"])
     assert result.exit_code == 0 and "size b 0.70" in result.output
+
+
+# ------------------------------------------------------------------ the gate, every robot
+
+
+def _drive(name: str, start: np.ndarray, field: np.ndarray, t0: float, rng) -> list:
+    """A robot driving straight ahead at 0.5 m/s for 20 s from `start`, odometry and a
+    frame every 0.5 s: the plants 0.5-2.5 m ahead within 35 deg, in its frame, 0.03 m off."""
+    from agrislam.records import Detection, Detections, Odometry
+
+    out, step = [], np.array([0.25, 0.0, 0.0])
+    for k in range(41):
+        pose = se2.compose(start, np.array([0.25 * k, 0.0, 0.0]))
+        t = t0 + 0.5 * k
+        if k:
+            out.append(Odometry(t=t, robot=name, delta=step, cov=np.diag([1e-4, 1e-4, 1e-5])))
+        local = se2.to_robot_frame(pose, field)
+        r, b = np.hypot(local[:, 0], local[:, 1]), np.arctan2(local[:, 1], local[:, 0])
+        seen = local[(r > 0.5) & (r < 2.5) & (np.abs(b) < np.radians(35))]
+        dets = [Detection(xy=xy + rng.normal(0, 0.03, 2), cov=np.eye(2) * 0.03**2) for xy in seen]
+        out.append(Detections(t=t, robot=name, objects=dets, sensor="front"))
+    return out
+
+
+def test_every_robot_of_a_survey_is_relocalised_by_its_own_first_frames():
+    """Two robots on lanes 3 m apart, driving opposite ways, the second starting later:
+    the records are released with both start poses from their own fixes."""
+    from agrislam.prior.map import PriorMap
+    from agrislam.records import Odometry
+    from agrislam.season import SeasonRun
+    from agrislam.world import WorldModel
+
+    field, rng = _field(1), np.random.default_rng(2)
+    prior = PriorMap(
+        schema=None,
+        ids=np.arange(len(field)),
+        xy=field,
+        cov=np.tile(np.eye(2) * 0.02**2, (len(field), 1, 1)),
+        n_meas=np.full(len(field), 5),
+    )
+    starts = {"r1": np.array([2.0, 3.5, 0.0]), "r2": np.array([16.0, 6.5, np.pi])}
+    records = _drive("r1", starts["r1"], field, 0.0, rng)
+    records += _drive("r2", starts["r2"], field, 3.0, rng)
+    records = [Meta(), *sorted(records, key=lambda r: (r.t, not isinstance(r, Odometry)))]
+    run = SeasonRun(prior, AgrislamConfig())
+    out = list(run.gate(records, WorldModel(AgrislamConfig())))
+    assert len(out) == len(records) and run.merged
+    for name, start in starts.items():
+        given = out[0].robots[name]
+        assert np.allclose(given.pose[:2], start[:2], atol=0.1), name
+        assert abs(se2.wrap_angle(given.pose[2] - start[2])) < 0.03, name
+        assert run.robots[name].after <= 10.0
+    assert set(run.summary()["robots"]) == {"r1", "r2"}
