@@ -1,6 +1,11 @@
 """A survey that continues a saved map (issue 15), as the pipeline runs it: the records
-held back until the robot is re-localised in the saved map (never merged into a wrong
+held back until the robots are re-localised in the saved map (never merged into a wrong
 place), then the survey mapped on the saved plants; at the end what changed.
+
+Every robot of the survey registers its own first frames (robots of one survey need not
+start together): the records are released when the first robot has its fix and every
+other robot heard of by then has its own or has given up (it then starts as any robot
+without a start pose: a weak prior, placed by the plants it shares).
 
 `SeasonRun(prior, config)` is handed to `pipeline.run_survey`; `gate` wraps the pose-synced
 records, `finish` classifies the saved plants after the world's last step.
@@ -18,7 +23,7 @@ from agrislam.config import AgrislamConfig, FieldSchema
 from agrislam.geometry import se2
 from agrislam.prior.changes import Changes, ViewArea, find_changes
 from agrislam.prior.map import PriorMap
-from agrislam.prior.relocalise import Fix, Relocaliser, cluster
+from agrislam.prior.relocalise import Fix, Relocaliser, cluster, detection_spread
 from agrislam.records import Detections, DiscreteMeasurement, Meta, Odometry, Record, RobotStart
 from agrislam.snapshot import STATUS_ACTIVE, STATUS_GONE
 from agrislam.world import WorldModel
@@ -38,6 +43,8 @@ class _Frames:
     dists: dict[str, list[np.ndarray]] = field(default_factory=dict)
     t0: float | None = None
     last_try: float = -np.inf
+    fix: Fix | None = None  # this robot's own fix, once localised
+    after: float | None = None  # s of driving until it
 
 
 class SeasonRun:
@@ -45,10 +52,13 @@ class SeasonRun:
 
     def __init__(self, prior: PriorMap, config: AgrislamConfig) -> None:
         self.prior, self.config, self.cfg = prior, config, config.season
-        self.relocaliser = Relocaliser(prior.xy, self.cfg)
-        self.fix: Fix | None = None
-        self.tries: list[tuple[float, str]] = []  # (s driven, outcome) of every try
-        self.localised_after: float | None = None  # s of driving until the fix
+        map_var = np.trace(prior.cov, axis1=1, axis2=2) / 2.0 if len(prior) else None
+        self.relocaliser = Relocaliser(prior.xy, self.cfg, map_var=map_var)
+        self.fix: Fix | None = None  # the first robot's latest try
+        self.tries: list[tuple[float, str]] = []  # (s driven, outcome) of its every try
+        self.localised_after: float | None = None  # s of driving until its fix
+        self.robots: dict[str, _Frames] = {}  # every robot's first frames and fix
+        self._first: str | None = None  # the first robot to detect anything
         self.merged = False
         self.start_check: str | None = None
         self.changes: Changes | None = None
@@ -57,12 +67,12 @@ class SeasonRun:
 
     # ----------------------------------------------------------------- the gate
     def gate(self, records: Iterable[Record], world: WorldModel) -> Iterator[Record]:
-        """Hold the records back until a fix (or the survey ends, or time runs out without
-        one: then the survey maps on its own, not merged); then the meta with the fixed
-        start pose and everything held."""
+        """Hold the records back until the robots' fixes (or the survey ends, or time runs
+        out without the first robot's fix: then the survey maps on its own, not merged);
+        then the meta with the fixed start poses and everything held."""
         meta: Meta | None = None
         held: list[Record] = []
-        frames: dict[str, _Frames] = {}
+        frames = self.robots
         it = iter(records)
         for rec in it:
             if isinstance(rec, Meta):
@@ -78,16 +88,21 @@ class SeasonRun:
                 robot.t0 = rec.t
             if isinstance(rec, Odometry) and rec.delta is not None:
                 robot.pose = se2.compose(robot.pose, rec.delta)
-            elif isinstance(rec, Detections) and rec.robot == next(iter(frames)):
+            elif isinstance(rec, Detections) and robot.fix is None:
                 self._place(robot, rec)
-                done = self._try(robot, rec.t, meta, world)
-                if done is not None:
-                    yield done
-                    yield from held
-                    yield from it
-                    return
-        self.tries.append((np.nan, self.fix.reason if self.fix else "no frames"))
-        yield meta if meta is not None else Meta()
+                self._try(rec.robot, robot, rec.t, meta)
+            done = self._released(rec.t, meta, world)
+            if done is not None:
+                yield done
+                yield from held
+                yield from it
+                return
+        first = self.robots.get(self._first) if self._first is not None else None
+        if first is not None and first.fix is not None:  # the log ended while others tried
+            yield self._start(meta, world)
+        else:
+            self.tries.append((np.nan, self.fix.reason if self.fix else "no frames"))
+            yield meta if meta is not None else Meta()
         yield from held
 
     def _place(self, robot: _Frames, frame: Detections) -> None:
@@ -116,10 +131,29 @@ class SeasonRun:
             out[name] = dist
         return out
 
-    def _try(self, robot: _Frames, t: float, meta: Meta | None, world: WorldModel) -> Meta | None:
+    def _released(self, t: float, meta: Meta | None, world: WorldModel) -> Meta | None:
+        """The meta to release the records with: the fixed one when the first robot and
+        every robot heard of have their fixes (or gave up), the given one when the first
+        robot gave up; None while waiting."""
+        first = self.robots.get(self._first) if self._first is not None else None
+        if first is None:
+            return None
+        if first.fix is None:
+            if first.t0 is not None and t - first.t0 > self.cfg.give_up_after_s:
+                return meta if meta is not None else Meta()
+            return None
+        waiting = [
+            r
+            for r in self.robots.values()
+            if r.fix is None and t - r.t0 <= self.cfg.give_up_after_s
+        ]
+        return None if waiting else self._start(meta, world)
+
+    def _try(self, name: str, robot: _Frames, t: float, meta: Meta | None) -> None:
+        """One registration of the robot's latest first frames (every attempt_every_s)."""
         driven = t - robot.t0
         if driven - robot.last_try < self.cfg.attempt_every_s:
-            return None
+            return
         robot.last_try = driven
         recent = np.asarray(robot.t) >= t - self.cfg.window_s
         xy = np.array(robot.xy).reshape(-1, 2)[recent]
@@ -136,33 +170,39 @@ class SeasonRun:
             self.relocaliser.compatible = lambda rows, j: check(
                 {n: m[rows] for n, m in means.items()}, ids[j]
             )
-        self.fix = self.relocaliser.locate(local, counts)
-        self.tries.append((driven, self.fix.reason))
-        if self.fix.localised:
-            self.localised_after = driven
-            return self._start(meta, world, self.fix)
-        if driven > self.cfg.give_up_after_s:
-            return meta if meta is not None else Meta()
-        return None
+        spread = detection_spread(xy, local, counts, label)
+        fix = self.relocaliser.locate(local, counts, spread)
+        if fix.localised:
+            robot.fix, robot.after = fix, driven
+        if name == self._first:
+            self.fix = fix
+            self.tries.append((driven, fix.reason))
+            self.localised_after = robot.after
 
-    def _start(self, meta: Meta | None, world: WorldModel, fix: Fix) -> Meta:
-        """The meta with the first robot's start pose from the fix, the prior given to the
-        world; a start pose the meta already gives is only checked against the fix."""
+    def _start(self, meta: Meta | None, world: WorldModel) -> Meta:
+        """The meta with each localised robot's start pose from its fix, the prior given to
+        the world; a start pose the meta already gives is only checked against the fix
+        (one off it refuses the merge)."""
         meta = meta if meta is not None else Meta()
-        first = self._first_robot
-        start = fix.transform
-        given = meta.robots.get(first)
-        if given is not None:
+        robots, checks = dict(meta.robots), []
+        for name, robot in self.robots.items():
+            if robot.fix is None:
+                continue
+            start, given = robot.fix.transform, meta.robots.get(name)
+            if given is None:
+                # the fix's own uncertainty, widened and floored: a start prior, not a clamp
+                sigma = np.maximum(3.0 * np.sqrt(np.diag(robot.fix.cov)), START_SIGMA_FLOOR)
+                robots[name] = RobotStart(pose=start, sigma=sigma)
+                continue
             d = np.linalg.norm(given.pose[:2] - start[:2])
             turn = abs(se2.wrap_angle(given.pose[2] - start[2]))
-            self.start_check = f"start pose off the fix by {d:.2f} m, {np.degrees(turn):.1f} deg"
+            checks.append(
+                f"{name}: start pose off the fix by {d:.2f} m, {np.degrees(turn):.1f} deg"
+            )
             if d > self.cfg.start_tolerance[0] or turn > self.cfg.start_tolerance[1]:
-                self.start_check += ": refused, not merged"
+                self.start_check = "; ".join(checks) + ": refused, not merged"
                 return meta
-            return self._merge(meta, world)
-        # the fix's own uncertainty, widened and floored: a start prior, not a clamp
-        sigma = np.maximum(3.0 * np.sqrt(np.diag(fix.cov)), START_SIGMA_FLOOR)
-        robots = {**meta.robots, first: RobotStart(pose=start, sigma=sigma)}
+        self.start_check = "; ".join(checks) or None
         return self._merge(dataclasses.replace(meta, robots=robots), world)
 
     def _merge(self, meta: Meta, world: WorldModel) -> Meta:
@@ -170,12 +210,8 @@ class SeasonRun:
         self.merged = True
         return meta
 
-    @property
-    def _first_robot(self) -> str:
-        return self._first
-
     def _keep_robot_frame(self, frame: Detections) -> None:
-        if not hasattr(self, "_first"):
+        if self._first is None:
             self._first = frame.robot
         if len(self._robot_xy) < 20_000:
             self._robot_xy.extend(d.position() for d in frame.objects)
@@ -211,6 +247,13 @@ class SeasonRun:
             if self.fix is None or not self.fix.localised
             else self.fix.transform.tolist(),
             "tries": [{"driven_s": d, "outcome": r} for d, r in self.tries],
+            "robots": {
+                name: {
+                    "localised_after_s": r.after,
+                    "fix": None if r.fix is None else r.fix.transform.tolist(),
+                }
+                for name, r in self.robots.items()
+            },
             "start_check": self.start_check,
             "changes": None if self.changes is None else self.changes.as_dict(),
         }

@@ -5,7 +5,9 @@ of them with a distinctive distance vote for SE(2) transforms through every save
 the same distance (pairwise-distance consistency, a RANSAC over SE(2) whose samples are
 the consistent pairs); each hypothesis is refined on its matches and scored by a
 Gaussian kernel of the residuals, with the attributes' beliefs as a compatibility check.
-A fix is given only when the best hypothesis explains most of the plants and the
+A fix is given only when the best hypothesis fits as well as a right one would (a chi^2
+test of its residuals against their predicted spread: the saved plants' covariances and
+the first frames' own detection scatter), explains most of the plants, and the
 second-best *distinct* one scores clearly less: crop rows are periodic, a shift by one
 plant or one row is the trap, and a wrong fix merges a survey into the wrong place.
 """
@@ -18,6 +20,7 @@ import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
+from scipy.stats import chi2
 
 from agrislam.config import SeasonConfig
 from agrislam.geometry import se2
@@ -28,6 +31,7 @@ BASE_PAIRS = 6  # first-frames pairs that vote
 BASE_DISTANCE = (1.0, 4.0)  # m: pairs shorter are not distinctive, longer cost too much
 DISTANCE_TOL = 0.06  # m: pair distances agree within detection noise and drift
 DISTINCT = (0.3, 0.05)  # (m, rad): hypotheses closer than this are the same one
+FIT_CONFIDENCE = 0.99  # a right place's residuals pass the chi^2 fit test this often
 
 
 @dataclass(frozen=True, slots=True)
@@ -61,6 +65,16 @@ def cluster(xy: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray, np.n
     return means, counts, label
 
 
+def detection_spread(xy: np.ndarray, means: np.ndarray, counts: np.ndarray, label) -> float:
+    """Per-axis variance of one detection about its plant, pooled over the plants seen
+    more than once (each plant's mean costs 2 degrees of freedom); 0 with none."""
+    many = counts[label] >= 2
+    dof = 2 * (int(many.sum()) - int((counts >= 2).sum()))
+    if dof <= 0:
+        return 0.0
+    return float(np.sum((xy[many] - means[label[many]]) ** 2) / dof)
+
+
 def rigid_fit(src: np.ndarray, dst: np.ndarray, weights: np.ndarray | None = None) -> np.ndarray:
     """Least-squares SE(2) (x, y, theta) taking `src` onto `dst` (2-D Kabsch)."""
     w = np.ones(len(src)) if weights is None else weights
@@ -83,14 +97,33 @@ def _apply(transforms: np.ndarray, xy: np.ndarray) -> np.ndarray:
     return np.stack([x, y], axis=-1)
 
 
+@dataclass(frozen=True, slots=True)
+class _Refined:
+    """A refined hypothesis: its transform, the matched plants' residuals (m), and which
+    first-frames plants (`local` rows) matched which saved ones (`saved` rows)."""
+
+    transform: np.ndarray
+    d: np.ndarray
+    local: np.ndarray
+    saved: np.ndarray
+
+
 class Relocaliser:
     """Registration of first-frames plants against the saved map's plants.
 
     `compatible(local_rows, map_ids)` -> (k,) bool says whether first-frames plant and
-    saved plant may be the same by their attributes (None: every pair may)."""
+    saved plant may be the same by their attributes (None: every pair may); `map_var`
+    (k,) the per-axis variance of each saved plant's position (None: exact)."""
 
-    def __init__(self, map_xy: np.ndarray, cfg: SeasonConfig, compatible=None) -> None:
+    def __init__(
+        self,
+        map_xy: np.ndarray,
+        cfg: SeasonConfig,
+        compatible=None,
+        map_var: np.ndarray | None = None,
+    ) -> None:
         self.map_xy = np.asarray(map_xy, dtype=float).reshape(-1, 2)
+        self.map_var = np.zeros(len(self.map_xy)) if map_var is None else np.asarray(map_var)
         self.cfg = cfg
         self.compatible = compatible
         self.tree = cKDTree(self.map_xy)
@@ -100,9 +133,10 @@ class Relocaliser:
         order = np.argsort(d[keep])
         self._pairs, self._pair_d = pairs[keep][order], d[keep][order]
 
-    def locate(self, local_xy: np.ndarray, counts: np.ndarray) -> Fix:
+    def locate(self, local_xy: np.ndarray, counts: np.ndarray, spread: float = 0.0) -> Fix:
         """Try to place the first-frames plants (k, 2) (dead-reckoning frame, `counts`
-        detections each) in the map."""
+        detections each, `spread` the per-axis variance of one detection about its plant:
+        `detection_spread`) in the map."""
         cfg = self.cfg
         keep = counts >= 2  # a plant seen once may be clutter
         local_xy, counts = local_xy[keep], counts[keep]
@@ -117,24 +151,34 @@ class Relocaliser:
         refined = [self._refine(h, local_xy, local_ids) for h in hyps]
         # the kernel's width is the best fit's own residual: a hypothesis shifted by one
         # plant has residuals of the spacing jitter, the right one of the detection noise
-        first = max(range(len(refined)), key=lambda k: _score(refined[k][1], cfg.score_sigma))
+        first = max(range(len(refined)), key=lambda k: _score(refined[k].d, cfg.score_sigma))
         sigma = float(
             np.clip(
-                _rms(refined[first][1], cfg.inlier_radius), 0.25 * cfg.score_sigma, cfg.score_sigma
+                _rms(refined[first].d, cfg.inlier_radius), 0.25 * cfg.score_sigma, cfg.score_sigma
             )
         )
-        scores = np.array([_score(d, sigma) for _, d in refined])
+        scores = np.array([_score(h.d, sigma) for h in refined])
         order = np.argsort(-scores)
-        best_t, d_best = refined[order[0]]
+        top = refined[order[0]]
+        best_t, d_best = top.transform, top.d
         best, inliers = float(scores[order[0]]), int((d_best < cfg.inlier_radius).sum())
         second = 0.0
         for i in order[1:]:
-            if _distinct(refined[i][0], best_t, local_xy):
+            if _distinct(refined[i].transform, best_t, local_xy):
                 second = float(scores[i])
                 break
         fix = dict(n_plants=n, n_inliers=inliers, score=best, second_score=second)
-        if _rms(d_best, cfg.inlier_radius) > cfg.score_sigma:
-            why = f"the best place fits only to {_rms(d_best, cfg.inlier_radius):.3f} m"
+        # each matched pair differs by the first frames' mean (spread / detections) and
+        # the saved plant's error: a right fit's normalised residuals are chi^2, 2 per
+        # match less the transform's 3
+        inside = d_best < cfg.inlier_radius
+        var = spread / counts[top.local[inside]] + self.map_var[top.saved[inside]]
+        dof = 2 * int(inside.sum()) - 3
+        if dof <= 0 or np.sum(d_best[inside] ** 2 / np.maximum(var, 1e-12)) > chi2.ppf(
+            FIT_CONFIDENCE, dof
+        ):
+            rms, expected = _rms(d_best, cfg.inlier_radius), np.sqrt(2.0 * np.mean(var))
+            why = f"the best place fits only to {rms:.3f} m ({expected:.3f} m expected)"
             return Fix(None, f"not localised yet: {why}", **fix)
         if inliers < cfg.min_landmarks or inliers < cfg.min_inlier_fraction * n:
             why = f"{inliers} of {n} plants match the best place"
@@ -178,9 +222,10 @@ class Relocaliser:
 
     def _refine(
         self, transform: np.ndarray, local_xy: np.ndarray, local_ids: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray]:
+    ) -> _Refined:
         """Two rounds of matching and refitting; the matched plants' residuals (m)."""
         cfg = self.cfg
+        none = np.empty(0, dtype=np.int64)
         for _ in range(2):
             moved = _apply(transform[None], local_xy)[0]
             d, j = self.tree.query(moved, distance_upper_bound=2.0 * cfg.inlier_radius)
@@ -189,10 +234,11 @@ class Relocaliser:
                 ok = self.compatible(local_ids[match], j[match])
                 match[np.flatnonzero(match)[~ok]] = False
             if match.sum() < 3:
-                return transform, np.empty(0)
+                return _Refined(transform, np.empty(0), none, none)
             transform = rigid_fit(local_xy[match], self.map_xy[j[match]])
         moved = _apply(transform[None], local_xy)[0]
-        return transform, np.linalg.norm(moved[match] - self.map_xy[j[match]], axis=1)
+        d = np.linalg.norm(moved[match] - self.map_xy[j[match]], axis=1)
+        return _Refined(transform, d, np.flatnonzero(match), j[match])
 
 
 def _base_pairs(local_xy: np.ndarray, counts: np.ndarray) -> list[tuple[int, int]]:

@@ -9,6 +9,7 @@ from dataclasses import replace
 
 import numpy as np
 
+from agrislam.geometry import se2
 from agrislam.records import Meta, Record
 from agrislam.sim.config import SimConfig
 from agrislam.sim.field import Field, _place_weeds
@@ -114,9 +115,18 @@ class SeasonSimulator(Simulator):
             self.paths = paths
 
     def meta(self, names: list[str], days: list[int]) -> Meta:
-        """No start pose (the robot is somewhere in the field); the survey's start time."""
+        """No start pose (the robot is somewhere in the field); the survey's start time.
+        On the first survey, mapped from nothing in the first robot's frame, a team's other
+        robots start where the team knows them to be from the first (unloaded together)."""
         meta = super().meta(names, days)
-        return replace(meta, robots={}, survey_start=SEASON_START, anchor=None)
+        robots = {}
+        if days == [0] and len(names) > 1:
+            first = meta.robots[names[0]].pose
+            robots = {
+                n: replace(meta.robots[n], pose=se2.between(first, meta.robots[n].pose))
+                for n in names[1:]
+            }
+        return replace(meta, robots=robots, survey_start=SEASON_START, anchor=None)
 
     def season_logs(self) -> Iterator[tuple[int, Iterator[Record]]]:
         for d in range(len(self.days)):
