@@ -101,6 +101,17 @@ def test_the_estimate_is_renewed_every_so_many_pairs_and_reported():
     assert report["sigma_factors"]["heading"] == report["sigma_factors"]["translation"] > 1.5
 
 
+def test_only_the_latest_max_pairs_pairs_are_kept():
+    rng = np.random.default_rng(3)
+    cal = NoiseCalibration(CalibrationConfig(min_pairs=10, update_every=10_000, max_pairs=100))
+    d, comps = synthetic_pairs(rng, 250, [1.0, 1.0, 1.0])
+    cal.add_pairs(d[:70], comps[:70])
+    cal.add_pairs(d[70:250], comps[70:250])  # more than the ring holds at once
+    assert cal.pairs_kept == 100 and cal.pairs_seen == 250
+    kept = {tuple(row) for row in cal._d}
+    assert kept == {tuple(row) for row in d[150:]}
+
+
 def test_a_disabled_calibration_keeps_the_configured_noise():
     cal = NoiseCalibration(CalibrationConfig(enabled=False, min_pairs=10))
     d, comps = synthetic_pairs(np.random.default_rng(8), 500, [1.0, 5.0, 5.0])

@@ -81,8 +81,9 @@ class NoiseCalibration:
     def __init__(self, config: CalibrationConfig) -> None:
         self.config = config
         self.scale = NoiseScale.configured()
-        self._d = np.empty((0, 2))
-        self._components = np.empty((0, len(TERMS), 2, 2))  # R, J dC_trans J^T, J dC_head J^T
+        # the latest `max_pairs` pairs, a ring: row n % max_pairs holds the n-th pair
+        self._d = np.empty((config.max_pairs, 2))
+        self._components = np.empty((config.max_pairs, len(TERMS), 2, 2))  # R, J dC J^T
         self._new = 0
         self.pairs_seen = 0
         self.pairs_used = 0
@@ -123,20 +124,24 @@ class NoiseCalibration:
         if not self.enabled or len(d) == 0:
             return
         keep = self.config.max_pairs
-        self._d = np.concatenate([self._d, d])[-keep:]
-        self._components = np.concatenate([self._components, components])[-keep:]
+        rows = (self.pairs_seen + np.arange(len(d))[-keep:]) % keep
+        self._d[rows], self._components[rows] = d[-keep:], components[-keep:]
         self._new += len(d)
         self.pairs_seen += len(d)
-        if len(self._d) >= self.config.min_pairs and self._new >= self.config.update_every:
+        if self.pairs_kept >= self.config.min_pairs and self._new >= self.config.update_every:
             self._new = 0
             self.scale = NoiseScale(self.estimate(self.scale.variance))
             self.updates += 1
+
+    @property
+    def pairs_kept(self) -> int:
+        return min(self.pairs_seen, self.config.max_pairs)
 
     def estimate(self, start: np.ndarray) -> np.ndarray:
         """ML variance factors over the pairs kept, with the pairs that no noise explains
         (a wrong association, a moved object) as a uniform outlier component: EM over
         the pairs' share of each, Fisher scoring of the factors, from `start`."""
-        d, comps = self._d, self._components
+        d, comps = self._d[: self.pairs_kept], self._components[: self.pairs_kept]
         v, inlier_share = start.copy(), 0.9
         if self.config.tie_odometry:  # one factor on the chain's translation and heading
             comps = np.stack([comps[:, 0], comps[:, 1] + comps[:, 2]], axis=1)
