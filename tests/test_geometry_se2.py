@@ -54,15 +54,19 @@ def test_right_perturbation_is_the_rotated_jacobian_at_frame_points():
     np.testing.assert_allclose(expected, numeric(f), atol=1e-6)
 
 
-def test_pose_uncertainty_is_the_additive_jacobian_squared():
-    def f(d):
-        return np.array([se2.compose(POSE + d, np.r_[p, 0.0])[:2] for p in POINTS])
+def test_pose_uncertainty_is_the_jacobian_of_gtsams_tangent_squared():
+    """A Pose2 marginal is in the robot's own frame: not the additive (x, y, theta)."""
+    pose = gtsam.Pose2(*POSE)
+
+    def f(xi):
+        return np.array([pose.compose(moved_by(xi)).transformFrom(p) for p in POINTS])
 
     jac = numeric(f)
     cov = np.array([[0.04, 0.01, 0.002], [0.01, 0.09, -0.003], [0.002, -0.003, 0.01]])
     expected = jac @ cov @ jac.transpose(0, 2, 1)
     got = se2.pose_uncertainty_at(POSE, cov, POINTS)
     np.testing.assert_allclose(got, expected, rtol=1e-6, atol=1e-9)
-    # the left and right Jacobians differ from it: the test above tells them apart
+    # the additive Jacobian differs from it: the test tells them apart
+    additive = se2.point_jacobian((se2.rotation(POSE[2]) @ POINTS.T).T)
     with pytest.raises(AssertionError):
-        np.testing.assert_allclose(se2.point_jacobian(POINTS), jac, atol=1e-3)
+        np.testing.assert_allclose(additive @ cov @ additive.transpose(0, 2, 1), got, rtol=1e-3)

@@ -74,11 +74,10 @@ def point_jacobian(xy: np.ndarray) -> np.ndarray:
 
 
 def pose_uncertainty_at(pose: np.ndarray, pose_cov: np.ndarray, xy: np.ndarray) -> np.ndarray:
-    """(m, 2, 2) map-frame covariance that a pose's (3, 3) uncertainty gives robot-frame
-    points xy (m, 2): J cov J^T with J = d(R(theta) p + t) / d(x, y, theta) = [I, J R p]."""
-    c, s = np.cos(pose[2]), np.sin(pose[2])
-    turned = np.column_stack([c * xy[:, 0] - s * xy[:, 1], s * xy[:, 0] + c * xy[:, 1]])  # R p
-    jac = point_jacobian(turned)
+    """(m, 2, 2) map-frame covariance that a pose's uncertainty gives robot-frame points
+    xy (m, 2), with `pose_cov` (3, 3) GTSAM's Pose2 marginal (the tangent of T Exp(xi),
+    in the robot's own frame): J cov J^T with J = R point_jacobian(p)."""
+    jac = rotation(pose[2]) @ point_jacobian(xy)
     return jac @ pose_cov @ jac.transpose(0, 2, 1)
 
 
