@@ -371,7 +371,7 @@ class IncrementalBackend(BackendBase):
             if not self.window:
                 fresh.update(graph, solution)
             else:
-                self._refold(solution, fresh)
+                self._refold(solution, fresh, graph)
         except RuntimeError as err:  # degenerate: carry on from the incremental estimate
             self.issues[f"refine skipped: {str(err).strip().splitlines()[0]}"] += 1
             return
@@ -403,18 +403,21 @@ class IncrementalBackend(BackendBase):
             z[rows] = to_robot_frame(frames[rows][0], xy[rows])
         objects.relocate(z)
 
-    def _refold(self, solution: gtsam.Values, fresh: gtsam.ISAM2) -> None:
+    def _refold(
+        self, solution: gtsam.Values, fresh: gtsam.ISAM2, graph: gtsam.NonlinearFactorGraph
+    ) -> None:
         """Live graph (in `fresh`) = keyframes and rows with the whole history marginalised
-        onto them at `solution`, plus the record's factors between them (kept nonlinear)."""
+        onto them at `solution`, plus the record's factors between them (kept nonlinear);
+        `graph` holds the record's factors, built once, in the record's order."""
         history, live = gtsam.NonlinearFactorGraph(), gtsam.NonlinearFactorGraph()
         fids: list[int | None] = []
         gone: set[int] = set()
-        for fid, factor in self.graph.factors.items():
+        for n, (fid, factor) in enumerate(self.graph.factors.items()):
             if self._permanent.issuperset(factor.keys):
                 fids.append(fid)
-                live.push_back(make_factor(factor, self.slam))
+                live.push_back(graph.at(n))
             else:
-                history.push_back(make_factor(factor, self.slam))
+                history.push_back(graph.at(n))
                 gone.update(k for k in factor.keys if k not in self._permanent)
         kept, values = gtsam.Values(), gtsam.Values()
         for key in self._live:

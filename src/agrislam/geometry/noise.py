@@ -149,8 +149,9 @@ def check_covariance(cov: np.ndarray, dim: int, what: str) -> np.ndarray:
 
 def gaussian(cov: np.ndarray) -> gtsam.noiseModel.Base:
     """Gaussian noise model of a covariance; diagonal ones become the cheaper Diagonal model."""
-    if np.count_nonzero(cov - np.diag(np.diag(cov))) == 0:
-        return gtsam.noiseModel.Diagonal.Variances(np.diag(cov).copy())
+    variances = cov.diagonal().copy()
+    if np.count_nonzero(cov) == np.count_nonzero(variances):
+        return gtsam.noiseModel.Diagonal.Variances(variances)
     return gtsam.noiseModel.Gaussian.Covariance(cov)
 
 
