@@ -271,6 +271,25 @@ def test_keyframes_stay_close_to_batch_and_refine_is_batch(small_survey):
     assert err["keyframes"] < 1.1 * err["batch"]
 
 
+def test_keyframes_beyond_the_kept_ones_fold_away_and_their_anchors_move_on(small_survey):
+    b, survey = small_survey
+    batch = make_backend(SlamConfig(backend="batch"), RowsConfig())
+    _, ids, _, _ = b.drive(batch, survey, None, float("inf"))
+    g = make_backend(SlamConfig(window=10, keyframes_kept=2), RowsConfig())
+    _, ids, complete, _ = b.drive(g, survey, None, float("inf"))
+    assert complete and g.rolls >= len(survey.steps) // 10
+    for frames in g._keyframes.values():  # the first pose and the newest two
+        assert len(frames) <= 3
+    anchors = np.concatenate([g._retired_objects.keyframes, g._retired_poses.keyframes])
+    assert set(anchors.tolist()) <= g._live  # everything hangs on a keyframe still there
+    online, exact = b.positions(g, ids), b.positions(batch, ids)
+    gap = [np.linalg.norm(online[k] - exact[k]) for k in ids]
+    assert np.sqrt(np.mean(np.square(gap))) < 0.1
+    g.refine()  # the whole record is kept: the batch solution again
+    refined = b.positions(g, ids)
+    assert max(np.linalg.norm(refined[k] - exact[k]) for k in ids) < 1e-3
+
+
 def loop_survey(g, bias: float = 0.02):
     """A robot drives a circle of radius 4 m (80 steps) past 12 landmarks, its odometry
     turning `bias` rad too little per step, and at the end sees the first ones again."""

@@ -384,6 +384,12 @@ class SlamConfig(_Strict):
         description="steps between keyframes; older poses and objects are folded onto the "
         "keyframes so a step's cost stays bounded; 0 = plain iSAM2 over the whole graph",
     )
+    keyframes_kept: int = Field(
+        0,
+        description="keyframes each robot keeps in the graph; older ones are folded away "
+        "like a window's poses (what hangs on them moves onto the newest), so the graph "
+        "stays bounded however long the survey; 0 = every keyframe stays",
+    )
     covariance_reuse_steps: int = Field(
         10,
         ge=1,

@@ -236,13 +236,15 @@ class IncrementalBackend(BackendBase):
                     self._cov_cache.pop(key, None)
 
     def _fold(self) -> None:
-        """Keyframe each robot's latest pose; marginalise the rest of the window out."""
+        """Keyframe each robot's latest pose; marginalise the rest of the window out (and
+        the keyframes beyond `keyframes_kept`, what hangs on them moved onto the newest)."""
         for robot, chain in self.graph.robots.items():
             latest = chain.keys[-1]
             if latest not in self._permanent:
                 self._permanent.add(latest)
                 self._keyframes[robot].append(latest)
-        window = self._live - self._permanent
+        aged = self._aged_keyframes()
+        window = (self._live - self._permanent) | aged
         if window:
             self._converge()
             slots = self._slots.touching(window)
@@ -254,6 +256,7 @@ class IncrementalBackend(BackendBase):
                     if not point.exists(key):
                         insert_value(point, key, self._estimate(key))
             self._retire(window, graph, point)
+            self._rebase(aged)
             marginal = self._marginal(graph, point, window)
             for key in marginal.keyVector():
                 if key_kind(key) == POSE and key not in self._folded_heading:
@@ -264,6 +267,32 @@ class IncrementalBackend(BackendBase):
             self._solve_pending(marginal)
         self._window_start = self._step
         self.rolls += 1
+
+    def _aged_keyframes(self) -> set[int]:
+        """Keyframes past each robot's newest `keyframes_kept` (the first pose, which
+        holds the start, stays); they leave the permanent set and the robot's list."""
+        kept = self.slam.keyframes_kept
+        aged: set[int] = set()
+        if not kept:
+            return aged
+        for robot, frames in self._keyframes.items():
+            old = frames[1:-kept] if len(frames) > kept + 1 else []
+            self._keyframes[robot] = frames[:1] + frames[len(old) + 1 :]
+            aged.update(old)
+        self._permanent -= aged
+        return aged
+
+    def _rebase(self, aged: set[int]) -> None:
+        """Retired poses and objects on an aged keyframe move onto the keyframe it was
+        itself retired onto (`_retire`), so that every anchor is a live keyframe."""
+        for keyframe in aged:
+            row = self._retired_poses.row(keyframe)
+            onto = int(self._retired_poses.keyframes[row])
+            relative = self._retired_poses.local[row]
+            self._retired_poses.rebase(keyframe, onto, relative)
+            self._retired_objects.rebase(keyframe, onto, relative)
+            self._folded_heading.pop(keyframe, None)
+            self._cov_cache.pop(keyframe, None)
 
     def _converge(self) -> None:
         """Gauss-Newton iterations relinearising everything that moved more than the

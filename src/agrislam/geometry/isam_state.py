@@ -21,6 +21,7 @@ import numpy as np
 from agrislam.geometry.batch import insert_value
 from agrislam.geometry.graph import POSE
 from agrislam.geometry.noise import gaussian, relative_to_range_bearing
+from agrislam.geometry.se2 import compose, rotation
 
 Serialisable = TypeVar("Serialisable", gtsam.NonlinearFactorGraph, gtsam.Values)
 
@@ -292,6 +293,21 @@ class Retired:
             self._row[int(self._columns["keys"][row])] = row
         self._n = last
         return True
+
+    def rebase(self, keyframe: int, onto: int, relative: np.ndarray) -> None:
+        """Every row on `keyframe` moves onto keyframe `onto`, where `keyframe` stands at
+        pose `relative`: its place becomes relative (+) local (a covariance turns along)."""
+        rows = np.flatnonzero(self.keyframes == np.uint64(keyframe))
+        if not len(rows):
+            return
+        local = self._columns["local"][rows].T
+        if self.dim == 2:
+            local = np.vstack([local, np.zeros(len(rows))])
+        self._columns["local"][rows] = compose(relative, local)[: self.dim].T
+        if "cov" in self._columns:
+            turn = rotation(relative[2])
+            self._columns["cov"][rows] = turn @ self._columns["cov"][rows] @ turn.T
+        self._columns["keyframes"][rows] = onto
 
     def relocate(self, local: np.ndarray) -> None:
         """Every row's new place relative to its keyframe (rows in order)."""
