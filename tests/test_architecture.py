@@ -18,6 +18,7 @@ CORE = [
     "season_config",
     "config",
     "growing",
+    "stage_timer",
     "records",
     "semantics",
     "snapshot",

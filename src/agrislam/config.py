@@ -320,6 +320,13 @@ class AssociationConfig(_Strict):
         "between neighbours, unless given here",
     )
     use_semantics: bool = True
+    weak_tentative: bool = Field(
+        True,
+        description="until an object is seen more than maintenance.prune_max_meas times, "
+        "its detections' factors have their sharpest sigma raised to d_inter "
+        "(association.tentative_inflation): the second sighting of clutter cannot pull "
+        "the poses; not in the paper",
+    )
     innovation_gate: bool = Field(
         False,
         description="compare e against its whole covariance instead of the paper's K_n "
@@ -447,6 +454,23 @@ class MaintenanceConfig(_Strict):
         "poorly (measured on the default simulation: 0.6 left 1 % false objects)",
     )
     prune_grace_s: float = Field(20.0, ge=0.0, description="s unseen before pruning")
+    existence: bool = Field(
+        True,
+        description="at the end of the survey, prune the objects whose detections in the "
+        "frames that had them in view say they are not there (clutter that caught a few "
+        "stray detections; maintenance.py): not in the paper",
+    )
+    stray_rate_prior: float = Field(
+        0.05,
+        gt=0.0,
+        lt=0.5,
+        description="prior chance per frame in view that a stray detection lands on a point "
+        "with nothing there; the survey's own rate is learned, this holds where it has little "
+        "clutter to learn from",
+    )
+    stray_prior_views: float = Field(
+        20.0, ge=0.0, description="frames in view the stray_rate_prior weighs as"
+    )
 
 
 class GnssConfig(_Strict):

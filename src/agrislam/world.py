@@ -10,10 +10,7 @@ between frames is kept in the robot's chain and composed into the frame's pose.
 from __future__ import annotations
 
 import dataclasses
-import time
 from collections import Counter
-from collections.abc import Iterator
-from contextlib import contextmanager
 from dataclasses import dataclass
 
 import numpy as np
@@ -26,6 +23,7 @@ from agrislam.association import (
     informative_measurements,
     innovation_covariance,
     max_association_distance,
+    tentative_inflation,
 )
 from agrislam.config import AgrislamConfig, AssociationConfig, FieldSchema
 from agrislam.geometry import se2
@@ -37,8 +35,7 @@ from agrislam.geometry.gnss import GnssFixes
 from agrislam.geometry.noise import SensorModel
 from agrislam.geometry.odometry import OdometryChain
 from agrislam.geometry.rows import RowTracker
-from agrislam.growing import GrowingRows
-from agrislam.maintenance import MaintenanceResult, merge_pairs, prune_due
+from agrislam.maintenance import Existence, MaintenanceResult, merge_pairs, prune_due
 from agrislam.objects import ObjectTable
 from agrislam.prior.backend import PriorBackend
 from agrislam.prior.map import PriorMap
@@ -54,6 +51,7 @@ from agrislam.records import (
 from agrislam.semantics.beliefs import BeliefTable
 from agrislam.semantics.heuristic import interest_surface
 from agrislam.snapshot import STATUS_MERGED, STATUS_PRUNED, MapSnapshot, ObjectMap, Trajectory
+from agrislam.stage_timer import StageTimer
 
 # what each timed stage of a step does (DESIGN.md "The pipeline, one step")
 STAGES = (
@@ -85,29 +83,6 @@ class StepReport:
     seconds: dict[str, float]
 
 
-class _Timer:
-    def __init__(self) -> None:
-        self.step: dict[str, float] = {}
-        self._history = GrowingRows((len(STAGES),))  # one row a step: no float object each
-
-    @property
-    def history(self) -> dict[str, np.ndarray]:
-        """Each stage's time of every step so far (s)."""
-        steps = self._history.array
-        return {stage: steps[:, n].copy() for n, stage in enumerate(STAGES)} if len(steps) else {}
-
-    @contextmanager
-    def __call__(self, stage: str) -> Iterator[None]:
-        start = time.perf_counter()
-        yield
-        self.step[stage] = self.step.get(stage, 0.0) + time.perf_counter() - start
-
-    def close_step(self) -> dict[str, float]:
-        done, self.step = self.step, {}
-        self._history.append([done.get(stage, 0.0) for stage in STAGES])
-        return done
-
-
 class WorldModel:
     """A probabilistic semantic map of a field, built from records of any source.
 
@@ -129,13 +104,14 @@ class WorldModel:
         self._steps_since_rebuild = 0
         self._index_refines = 0
         self.depth_bias = DepthBiasEstimator(self.config.sensor.depth_bias)
+        self.existence = Existence(self.config.maintenance)
         self.anchor = None
         self.issues: Counter[str] = self.backend.issues  # with what the back end isolated
         self.robots: dict[str, OdometryChain] = {}
         self._field_prior: FieldPrior | None = None
         self._settled = False  # the defaults that depend on the survey are chosen
         self.gnss = GnssFixes(self.config.gnss)
-        self._timer = _Timer()
+        self._timer = StageTimer(STAGES)
         self.prior: PriorMap | None = None  # a saved map this survey continues (issue 15)
         self.survey_start: float | None = None  # absolute time (Unix s) of t = 0
 
@@ -281,10 +257,17 @@ class WorldModel:
             self.beliefs.update(object_ids, [d.attributes for d in detections], t)
         with timer("optimise"):
             sigma_scale = float(self.noise.scale.sigma[0])
-            for det, obj, xy, cov in zip(
-                detections, object_ids.tolist(), placed.robot_xy, placed.robot_cov, strict=True
+            weak = self.objects.young[object_ids] & self.association.weak_tentative
+            weak = tentative_inflation(placed.robot_cov, weak, self.association.d_inter)
+            for det, obj, xy, cov, k in zip(
+                detections,
+                object_ids.tolist(),
+                placed.robot_xy,
+                placed.robot_cov,
+                weak,
+                strict=True,
             ):
-                measurement = self.sensor.measurement(det, xy, cov, sigma_scale)
+                measurement = self.sensor.measurement(det, xy, cov * k * k, sigma_scale * k)
                 self.backend.add_observation(robot, obj, measurement)
             self.backend.update()
         with timer("index"):
@@ -295,6 +278,7 @@ class WorldModel:
             if self.rows is not None:
                 self.rows.after_step(self.backend, seen, len(detections), self.objects.n_frames)
         with timer("maintain"):
+            self.existence.observe(placed.robot_xy)
             result = self._maintain(seen, t)
         report = StepReport(t, robot, self.resolve(object_ids), new_ids, result, {})
         report.seconds = timer.close_step()
@@ -449,13 +433,20 @@ class WorldModel:
     def finish(self) -> MaintenanceResult:
         """End of the survey: solve the whole graph once more (the real-time estimate
         folds history away, sec. 2.6), and prune the young uncertain objects still
-        waiting for their grace period: they will not be seen again."""
+        waiting for their grace period: they will not be seen again; then the objects
+        the survey's detections say are not there (maintenance.Existence)."""
         self.backend.refine()
         for name, chain in self.robots.items():
             if not chain.started:
                 self.issues[f"robot {name!r} is in the meta but has no records"] += 1
         t = float(self.objects.last_update.max(initial=0.0))
-        return self._maintain(np.empty(0, dtype=int), t, grace=0.0)
+        result = self._maintain(np.empty(0, dtype=int), t, grace=0.0)
+        ids = self.active_ids()  # of this survey: a saved map's plants are the season's
+        ids = ids[ids > (self.prior.ids.max(initial=-1) if self.prior is not None else -1)]
+        poses = [self.backend.trajectory(r)[1] for r, c in self.robots.items() if c.started]
+        absent = self.existence.absent(ids, self.backend.object_positions, self.objects, poses)
+        result.pruned += self._prune(absent)
+        return result
 
     def _maintain(
         self, touched: np.ndarray, t: float, grace: float | None = None
@@ -474,12 +465,16 @@ class WorldModel:
             )
             result.merged = self._merge(pairs)
         if cfg.prune:
-            result.pruned = prune_due(self.objects, t, cfg, grace)
-            for obj in result.pruned:
-                self.backend.remove_object(obj)
-            if result.pruned:
-                self.objects.retire(np.array(result.pruned), STATUS_PRUNED)
+            result.pruned = self._prune(prune_due(self.objects, t, cfg, grace))
         return result
+
+    def _prune(self, ids: list[int]) -> list[int]:
+        """The objects leave the graph and the map."""
+        for obj in ids:
+            self.backend.remove_object(obj)
+        if ids:
+            self.objects.retire(np.array(ids), STATUS_PRUNED)
+        return ids
 
     def _merge(self, pairs: list[tuple[int, int]]) -> list[tuple[int, int]]:
         """Fold each `drop` into its `keep`: beliefs fused, graph nodes merged."""

@@ -18,42 +18,11 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from agrislam.config import SeasonConfig
+from agrislam.geometry.view_area import ViewArea, log_odds_absent
 
-
-@dataclass(frozen=True, slots=True)
-class ViewArea:
-    """The camera's seen area in the robot frame: range and bearing bounds."""
-
-    range: tuple[float, float]
-    bearing: tuple[float, float]
-
-    @classmethod
-    def learned(cls, robot_xy: np.ndarray, margin: float) -> ViewArea:
-        r = np.hypot(robot_xy[:, 0], robot_xy[:, 1])
-        b = np.arctan2(robot_xy[:, 1], robot_xy[:, 0])
-        r_lo, r_hi = np.quantile(r, [0.02, 0.98])
-        b_lo, b_hi = np.quantile(b, [0.02, 0.98])
-        turn = margin / max(r_hi, 1e-6)
-        return cls((r_lo + margin, r_hi - margin), (b_lo + turn, b_hi - turn))
-
-    def views(self, poses: np.ndarray, xy: np.ndarray) -> np.ndarray:
-        """(k,) frames (poses (m, 3)) in which each map point (k, 2) was inside the area."""
-        counts = np.zeros(len(xy), dtype=np.int64)
-        if not len(poses) or not len(xy):
-            return counts
-        near = cKDTree(poses[:, :2]).query_ball_point(xy, self.range[1])
-        for k, frames in enumerate(near):
-            if frames:
-                local = _in_robot_frames(poses[frames], xy[k])
-                r = np.hypot(local[:, 0], local[:, 1])
-                b = np.arctan2(local[:, 1], local[:, 0])
-                inside = (r >= self.range[0]) & (r <= self.range[1])
-                inside &= (b >= self.bearing[0]) & (b <= self.bearing[1])
-                counts[k] = int(inside.sum())
-        return counts
+__all__ = ["Changes", "ViewArea", "find_changes"]
 
 
 @dataclass(frozen=True, slots=True)
@@ -84,11 +53,7 @@ def _log_odds_gone(
 ) -> np.ndarray:
     """log P(not there) - log P(there) after `seen` detections in `views` frames in view
     (the binomial posterior of the module docstring)."""
-    p0, e = cfg.gone_prior, cfg.stray_rate
-    miss = views - seen
-    log_gone = np.log(p0) + seen * np.log(e) + miss * np.log1p(-e)
-    log_there = np.log1p(-p0) + seen * np.log(p_d) + miss * np.log1p(-p_d)
-    return log_gone - log_there
+    return log_odds_absent(seen, views, p_d, cfg.stray_rate, cfg.gone_prior)
 
 
 def find_changes(
@@ -123,10 +88,3 @@ def find_changes(
         p_detect=p_d,
         unconfirmed=np.asarray(new_ids, dtype=np.int64)[~confirmed],
     )
-
-
-def _in_robot_frames(poses: np.ndarray, xy: np.ndarray) -> np.ndarray:
-    """(m, 2) the map point xy in the frame of each robot pose (m, 3)."""
-    d = xy - poses[:, :2]
-    c, s = np.cos(poses[:, 2]), np.sin(poses[:, 2])
-    return np.column_stack([c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1]])

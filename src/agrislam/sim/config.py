@@ -261,6 +261,12 @@ class DetectorConfig(_Strict):
         description="false detections of nothing per frame, Poisson: with the "
         "Gazebo model's precision of 0.83 (App. A) most false positives are doubles, below",
     )
+    # issue 12's hostile scenarios: clutter as a share of the frame's plant detections
+    # (Poisson, on top of clutter_rate), and gross range errors: a share of the plant
+    # detections moved along their ray by outlier_range m either way, reported as good ones
+    clutter_fraction: float = Field(0.0, ge=0.0)
+    outlier_fraction: float = Field(0.0, ge=0.0, le=1.0)
+    outlier_range: tuple[float, float] = (1.0, 4.0)
     double_detection_p: float = Field(
         0.03,
         ge=0.0,

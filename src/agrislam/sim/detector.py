@@ -46,13 +46,13 @@ class Detector:
         plants = np.concatenate([seen, twice])
         xy = np.vstack([self.field.xy[seen], twice_xy])
         r, b = self._polar(cam, pose[2], xy)
-        dets = self._measure(r, b, self.field.length[plants], rng)
+        dets = self._measure(r, b, self.field.length[plants], rng, self._gross_errors(r, rng))
         sem = self._semantics(plants, r, rng)
         out = [
             self._detection(dets[k], {n: v[k] for n, v in sem.items()}, str(self.field.ids[i]))
             for k, i in enumerate(plants)
         ]
-        out += self._clutter(rng)
+        out += self._clutter(rng, cfg.clutter_rate + cfg.clutter_fraction * len(seen))
         return tuple(out[k] for k in rng.permutation(len(out)))
 
     def p_detect(self, r: np.ndarray) -> np.ndarray:
@@ -81,14 +81,29 @@ class Detector:
             & (np.abs(bearing) <= self.half_fov)
         )
 
+    def _gross_errors(self, r: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        """(k,) range errors of the detections at ranges r: 0, or for `outlier_fraction`
+        of them a jump of `outlier_range` metres either way along the ray."""
+        cfg = self.cfg
+        if cfg.outlier_fraction == 0.0:  # no draws: the clean survey's stream is unchanged
+            return np.zeros(len(r))
+        size = rng.uniform(*cfg.outlier_range, len(r)) * rng.choice([-1.0, 1.0], len(r))
+        return np.where(rng.random(len(r)) < cfg.outlier_fraction, size, 0.0)
+
     def _measure(
-        self, r: np.ndarray, b: np.ndarray, length: np.ndarray, rng: np.random.Generator
+        self,
+        r: np.ndarray,
+        b: np.ndarray,
+        length: np.ndarray,
+        rng: np.random.Generator,
+        gross: np.ndarray | float = 0.0,
     ) -> list[dict]:
-        """Noisy positions in the robot base frame, with the uncertainty the detector reports."""
+        """Noisy positions in the robot base frame, with the uncertainty the detector
+        reports (that of a good detection, also for a gross range error `gross`)."""
         cfg = self.cfg
         bias = cfg.depth_bias_fraction * length  # mask averaging sees the near side (sec. 2.3)
         sd = self.sigma_depth(r)
-        r_m = np.maximum(r - bias + rng.normal(0.0, 1.0, len(r)) * sd, 0.05)
+        r_m = np.maximum(r - bias + rng.normal(0.0, 1.0, len(r)) * sd + gross, 0.05)
         lateral = rng.normal(0.0, cfg.sigma_lateral_0, len(r))
         b_m = (
             b
@@ -155,11 +170,11 @@ class Detector:
         p = np.clip(p_true + rng.normal(0.0, cfg.p_noise, len(r)), P_MIN, P_MAX)
         return value, p
 
-    def _clutter(self, rng: np.random.Generator) -> list[Detection]:
-        """False detections of nothing (a leaf, a shadow): Poisson per frame, anywhere in view,
-        with random semantics reported as confidently as real ones."""
+    def _clutter(self, rng: np.random.Generator, rate: float) -> list[Detection]:
+        """False detections of nothing (a leaf, a shadow): Poisson with mean `rate` per
+        frame, anywhere in view, with random semantics reported as confidently as real ones."""
         cfg = self.cfg
-        n = rng.poisson(cfg.clutter_rate)
+        n = rng.poisson(rate)
         if n == 0:
             return []
         r = np.sqrt(rng.uniform(cfg.min_range**2, cfg.max_range**2, n))

@@ -1,0 +1,71 @@
+"""Where the camera looked, and what a detection count there says about existence.
+
+The camera's seen area is learned from a survey's own detections (in the robot frame:
+range and bearing quantiles), so no camera model is needed. A map point inside it at k
+frames and detected in n of them is there, against not there (nothing but stray
+detections: clutter, a neighbour), with the binomial likelihoods
+
+    P(n | there) = p_d^n (1 - p_d)^(k - n),    P(n | not there) = e^n (1 - e)^(k - n),
+
+p_d the detection rate of a plant in view and e the rate of stray detections on a point.
+Used for plants gone between surveys (prior/changes.py) and for the clutter of one survey
+(maintenance.py).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+
+@dataclass(frozen=True, slots=True)
+class ViewArea:
+    """The camera's seen area in the robot frame: range and bearing bounds."""
+
+    range: tuple[float, float]
+    bearing: tuple[float, float]
+
+    @classmethod
+    def learned(cls, robot_xy: np.ndarray, margin: float) -> ViewArea:
+        r = np.hypot(robot_xy[:, 0], robot_xy[:, 1])
+        b = np.arctan2(robot_xy[:, 1], robot_xy[:, 0])
+        r_lo, r_hi = np.quantile(r, [0.02, 0.98])
+        b_lo, b_hi = np.quantile(b, [0.02, 0.98])
+        turn = margin / max(r_hi, 1e-6)
+        return cls((r_lo + margin, r_hi - margin), (b_lo + turn, b_hi - turn))
+
+    def views(self, poses: np.ndarray, xy: np.ndarray) -> np.ndarray:
+        """(k,) frames (poses (m, 3)) in which each map point (k, 2) was inside the area."""
+        counts = np.zeros(len(xy), dtype=np.int64)
+        if not len(poses) or not len(xy):
+            return counts
+        near = cKDTree(poses[:, :2]).query_ball_point(xy, self.range[1])
+        for k, frames in enumerate(near):
+            if frames:
+                local = in_robot_frames(poses[frames], xy[k])
+                r = np.hypot(local[:, 0], local[:, 1])
+                b = np.arctan2(local[:, 1], local[:, 0])
+                inside = (r >= self.range[0]) & (r <= self.range[1])
+                inside &= (b >= self.bearing[0]) & (b <= self.bearing[1])
+                counts[k] = int(inside.sum())
+        return counts
+
+
+def log_odds_absent(
+    seen: np.ndarray, views: np.ndarray, p_d: float, e: float, p_absent: float
+) -> np.ndarray:
+    """log P(not there) - log P(there) after `seen` detections in `views` frames in view,
+    with the prior P(not there) = `p_absent` (the binomial posterior of the docstring)."""
+    miss = views - seen
+    log_absent = np.log(p_absent) + seen * np.log(e) + miss * np.log1p(-e)
+    log_there = np.log1p(-p_absent) + seen * np.log(p_d) + miss * np.log1p(-p_d)
+    return log_absent - log_there
+
+
+def in_robot_frames(poses: np.ndarray, xy: np.ndarray) -> np.ndarray:
+    """(m, 2) the map point xy in the frame of each robot pose (m, 3)."""
+    d = xy - poses[:, :2]
+    c, s = np.cos(poses[:, 2]), np.sin(poses[:, 2])
+    return np.column_stack([c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1]])
