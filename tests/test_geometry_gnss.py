@@ -17,6 +17,7 @@ from agrislam.geometry.gnss import (
     antenna_jacobian,
     antenna_position,
     gnss_factor,
+    kernel_width,
     weighted_covariance,
 )
 from agrislam.records import Anchor, GnssFix
@@ -155,3 +156,50 @@ def test_a_graph_with_gnss_fixes_round_trips_through_g2o(tmp_path) -> None:
     np.testing.assert_allclose(fix.value, value)
     np.testing.assert_allclose(fix.cov, [[4e-4, 1e-4], [1e-4, 9e-4]], rtol=1e-9)
     assert fix.keys == (back.robots["r1"].keys[1],)
+
+
+def gate_run(fixes: list[tuple[float, float]], cfg: GnssConfig | None = None) -> GnssFixes:
+    """A robot driving 1 m east a step on odometry that claims to be near perfect, one RTK
+    fixed fix (x, y) a step, as the world feeds them: each fix waits for the next pose."""
+    be = make_backend(SlamConfig(), RowsConfig())
+    be.add_robot("r1", np.zeros(3), np.array([0.01, 0.01, 0.001]), 0.0)
+    frame, gnss = MapFrame(ANCHOR), GnssFixes(cfg or GnssConfig())
+    tight = np.diag([1e-6, 1e-6, 1e-8])
+    for i, xy in enumerate(fixes):
+        if i:
+            be.add_odometry("r1", float(i), np.array([1.0, 0.0, 0.0]), tight)
+        dr = be.current_pose("r1")
+        gnss.receive(fix_at(frame, xy, t=float(i)), ANCHOR, dr)
+        gnss.attach(be, "r1", dr, be.current_pose_covariance("r1"))
+        be.update()
+    return gnss
+
+
+def test_gate_takes_fixes_that_agree_after_a_drift_beyond_the_covariance() -> None:
+    # the odometry says y = 0, its covariance a millimetre; the fixes agree on y = 0.5
+    gnss = gate_run([(float(i), 0.5) for i in range(8)])
+    # the first two wait for company, the third shows the drift, the rest follow the pull
+    assert gnss.counts["rejected_gate"] == 2
+    assert gnss.counts["used"] == 6
+
+
+def test_gate_refuses_multipath_jumps_that_agree_with_nothing() -> None:
+    # good fixes on the track, three jumps of metres in a row in different directions
+    jumps = {3: (3.0, 5.0), 4: (4.0, -4.0), 5: (9.0, 0.0)}
+    gnss = gate_run([jumps.get(i, (float(i), 0.0)) for i in range(9)])
+    assert gnss.counts["rejected_gate"] == 3
+    assert gnss.counts["used"] == 6
+
+
+def test_without_consistency_the_gate_waits_for_reacquire() -> None:
+    cfg = GnssConfig(gate_consistent=0, gate_reacquire=4)
+    gnss = gate_run([(float(i), 0.5) for i in range(8)], cfg)
+    assert gnss.counts["rejected_gate"] == 4
+
+
+def test_kernel_width_is_in_innovation_standard_deviations() -> None:
+    fix = np.eye(2) * 0.02**2
+    assert kernel_width(fix, fix, 2.0) == pytest.approx(2.0)
+    # a pose uncertain by 0.06 m: the innovation is sqrt(10) fix sigmas wide
+    wide = fix + np.diag([0.06**2, 1e-6])
+    assert kernel_width(fix, wide, 2.0) == pytest.approx(2.0 * math.sqrt(10.0))

@@ -4,14 +4,24 @@ robot frame sits at t + R(theta) l in the map frame, which the fix measures.
 A fix is projected into the map frame of the survey's anchor (geometry/geodesy.py), tied
 to the robot's next pose node with the odometry between the fix and that node folded into
 the lever arm, weighted by its covariance with a floor per fix type, gated on its
-Mahalanobis distance from the predicted antenna, and wrapped in a robust kernel. RTK
-float, single fixes and multipath jumps thus cannot pull a map that RTK fixed fixes hold.
+Mahalanobis distance from the predicted antenna, and wrapped in a robust kernel as wide as
+the fix's innovation. RTK float, single fixes and multipath jumps thus cannot pull a map
+that RTK fixed fixes hold.
+
+Odometry drifts more than its covariance says (a yaw-rate bias, a scale error, slip in
+turns), so after a few seconds without a fix the pose may lie beyond the gate of good
+fixes. Fixes beyond the gate that agree with each other (`Innovation.agrees`: their offsets
+from the predicted antenna differ by no more than their noise and the odometry between
+them allow) show that the pose drifted: the gate then takes them and stays widened by the
+offset they showed until a fix passes the plain gate again. A multipath jump is a lone fix
+that agrees with neither neighbour, so it stays out.
 """
 
 from __future__ import annotations
 
+import math
 from collections import Counter
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import gtsam
 import numpy as np
@@ -73,12 +83,54 @@ def mahalanobis2(residual: np.ndarray, cov: np.ndarray) -> float:
     return float(residual @ np.linalg.solve(cov, residual))
 
 
+def psd_part(cov: np.ndarray) -> np.ndarray:
+    """A symmetric matrix with its negative eigenvalues set to zero."""
+    w, v = np.linalg.eigh(cov)
+    return (v * np.maximum(w, 0.0)) @ v.T
+
+
+def kernel_width(fix_cov: np.ndarray, innovation_cov: np.ndarray, k: float) -> float:
+    """The robust kernel's width in the fix's own whitened units for a kernel `k` standard
+    deviations of the innovation wide: k sqrt(largest eigenvalue of C^-1 S), at least k."""
+    ratio = np.linalg.eigvals(np.linalg.solve(fix_cov, innovation_cov)).real.max()
+    return k * math.sqrt(max(1.0, float(ratio)))
+
+
+@dataclass(slots=True)
+class Innovation:
+    """A fix against the predicted antenna: r = predicted - z, the fix's covariance C and
+    the predicted pose's share J P J^T of S = C + J P J^T (P the pose's marginal)."""
+
+    residual: np.ndarray  # (2,)
+    fix_cov: np.ndarray  # (2, 2)
+    pose_cov: np.ndarray  # (2, 2)
+
+    def agrees(self, before: Innovation, chi2: float) -> bool:
+        """Whether this and the previous fix are offset from the predicted antenna alike:
+        their offsets differ by less than the gate allows for the two fixes' noise and the
+        pose uncertainty gained in between (the odometry's, as the marginal grew)."""
+        grown = psd_part(self.pose_cov - before.pose_cov)
+        diff = self.residual - before.residual
+        return mahalanobis2(diff, self.fix_cov + before.fix_cov + grown) <= chi2
+
+
 @dataclass(slots=True)
 class PendingFix:
     z: np.ndarray  # (2,) antenna in the map frame
     cov: np.ndarray  # (2, 2) weighted covariance there
     lever: np.ndarray  # (2,) antenna in the robot frame
     dead_reckoning: np.ndarray  # (3,) the robot's dead-reckoned pose when the fix came
+
+
+@dataclass(slots=True)
+class GateState:
+    """A robot's gate: the fixes rejected in a row, the last of them and how many before it
+    agreed with each other, and the drift the gate is widened by (module docstring)."""
+
+    beyond: int = 0
+    last: Innovation | None = None
+    agreeing: int = 0
+    drift: np.ndarray = field(default_factory=lambda: np.zeros((2, 2)))
 
 
 class GnssFixes:
@@ -90,7 +142,7 @@ class GnssFixes:
         self.frame: MapFrame | None = None
         self.pending: dict[str, list[PendingFix]] = {}
         self.counts: Counter[str] = Counter()
-        self.gated: Counter[str] = Counter()  # robot -> fixes rejected in a row by the gate
+        self.gates: dict[str, GateState] = {}
 
     def receive(
         self, fix: GnssFix, anchor: Anchor | None, dead_reckoning: np.ndarray
@@ -123,35 +175,60 @@ class GnssFixes:
         self, backend, robot: str, dead_reckoning: np.ndarray, pose_cov: np.ndarray | None
     ) -> None:
         """The robot's waiting fixes as factors on its latest pose node: the odometry since
-        each fix moves its lever arm; a fix beyond the gate is rejected."""
+        each fix moves its lever arm; a fix beyond the gate is rejected, unless it and the
+        ones before it show that the pose drifted."""
         fixes = self.pending.pop(robot, [])
         if not fixes:
             return
         pose = backend.current_pose(robot)
         kernel = KERNELS.index(self.cfg.robust_kernel)
+        gate = self.gates.setdefault(robot, GateState())
         for fix in fixes:
             since = se2.between(dead_reckoning, fix.dead_reckoning)  # fix pose in node frame
             lever = antenna_position(since, fix.lever)
-            if self._gated(pose, pose_cov, lever, fix) and (
-                self.gated[robot] < self.cfg.gate_reacquire
-            ):  # after that many in a row the map, not the fixes, is taken to be wrong
-                self.gated[robot] += 1
+            new = self._innovation(pose, pose_cov, lever, fix)
+            innovation_cov = self._admit(gate, new, gated=pose_cov is not None)
+            if innovation_cov is None:
                 self.counts["rejected_gate"] += 1
                 continue
-            self.gated[robot] = 0
-            value = np.array([*fix.z, *lever, self.cfg.robust_k, kernel])
-            backend.add_gnss(robot, value, fix.cov)
+            width = kernel_width(fix.cov, innovation_cov, self.cfg.robust_k)
+            backend.add_gnss(robot, np.array([*fix.z, *lever, width, kernel]), fix.cov)
             self.counts["used"] += 1
 
-    def _gated(
-        self, pose: np.ndarray, pose_cov: np.ndarray | None, lever: np.ndarray, fix: PendingFix
-    ) -> bool:
-        """Whether the fix lies beyond the chi2 gate around the predicted antenna."""
-        if self.cfg.gate_chi2 <= 0.0 or pose_cov is None:
-            return False
+    @staticmethod
+    def _innovation(
+        pose: np.ndarray, pose_cov: np.ndarray | None, lever: np.ndarray, fix: PendingFix
+    ) -> Innovation:
         jac = antenna_jacobian(pose, lever)
-        residual = antenna_position(pose, lever) - fix.z
-        return mahalanobis2(residual, fix.cov + jac @ pose_cov @ jac.T) > self.cfg.gate_chi2
+        share = np.zeros((2, 2)) if pose_cov is None else jac @ pose_cov @ jac.T
+        return Innovation(antenna_position(pose, lever) - fix.z, fix.cov, share)
+
+    def _admit(self, gate: GateState, new: Innovation, gated: bool) -> np.ndarray | None:
+        """The innovation covariance a fix is taken with, or None when the gate rejects
+        it: beyond the chi2 gate (widened by any drift found) unless it is the
+        `gate_consistent`-th in a row to agree with the one before, or the
+        `gate_reacquire`-th in a row beyond it."""
+        chi2 = self.cfg.gate_chi2
+        plain = new.fix_cov + new.pose_cov
+        if chi2 <= 0.0 or not gated:  # no gate, or no pose covariance to gate with
+            return plain
+        if mahalanobis2(new.residual, plain) <= chi2:
+            gate.beyond, gate.last, gate.agreeing, gate.drift = 0, None, 0, np.zeros((2, 2))
+            return plain
+        if mahalanobis2(new.residual, plain + gate.drift) <= chi2:
+            gate.beyond, gate.last, gate.agreeing = 0, None, 0
+            return plain + gate.drift
+        agrees = gate.last is not None and new.agrees(gate.last, chi2)
+        gate.agreeing = gate.agreeing + 1 if agrees else 0
+        gate.beyond += 1
+        gate.last = new
+        drifted = 0 < self.cfg.gate_consistent <= gate.agreeing + 1
+        if not drifted and gate.beyond <= self.cfg.gate_reacquire:
+            return None
+        # the pose drifted: take the fix, and the next ones as far off as it was
+        gate.drift = np.outer(new.residual, new.residual)
+        gate.beyond, gate.last, gate.agreeing = 0, None, 0
+        return plain + gate.drift
 
     def summary(self) -> dict[str, int]:
         """Fixes received, used and rejected (by reason), for metrics.json."""
