@@ -345,7 +345,8 @@ class AssociationConfig(_Strict):
         description="a survey without a field prior is not the crop field the paper's "
         "defaults are for: unless set here, it is gated on the whole innovation "
         "(innovation_gate, at landmark_gate_chi2, over landmark_sigma_max), d_inter is three "
-        "of the detections' sharpest sigma, and rows are off unless rows.enabled is set",
+        "of the detections' sharpest sigma, rows are off unless rows.enabled is set, and the "
+        "crop camera's clutter guards (weak_tentative, maintenance.existence) are off",
     )
     landmark_gate_chi2: float = Field(
         9.21, gt=0.0, description="the gate without a field prior: 99 % of a 2D position"
