@@ -16,6 +16,7 @@ MAX_LINES = 600
 CORE = [
     "limits",
     "season_config",
+    "gnss_config",
     "config",
     "growing",
     "stage_timer",

@@ -17,6 +17,7 @@ from typing import Annotated, Any, Literal
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, PositiveFloat, model_validator
 
+from agrislam.gnss_config import GnssConfig
 from agrislam.limits import InputLimits
 from agrislam.limits import StrictModel as _Strict
 from agrislam.season_config import SeasonConfig
@@ -471,47 +472,6 @@ class MaintenanceConfig(_Strict):
     )
     stray_prior_views: float = Field(
         20.0, ge=0.0, description="frames in view the stray_rate_prior weighs as"
-    )
-
-
-class GnssConfig(_Strict):
-    """GNSS fixes as factors on the robot pose (geometry/gnss.py)."""
-
-    enabled: bool = True
-    # sigma floor per fix type (m, horizontal): a receiver's covariance is trusted no lower
-    fix_sigma: dict[str, float] = Field(
-        default_factory=lambda: {"rtk_fixed": 0.01, "rtk_float": 0.2, "dgps": 0.5, "single": 1.5},
-        description="m, the least horizontal sigma each fix type is taken with; a type not "
-        "named here (none) is never used",
-    )
-    robust_kernel: Literal["huber", "cauchy", "none"] = "cauchy"
-    robust_k: float = Field(
-        2.0,
-        gt=0.0,
-        description="kernel width in standard deviations of the fix's innovation (its own "
-        "noise, the predicted pose's and any drift the gate found), so a fix that pulls a "
-        "pose the odometry let wander is not taken for an outlier",
-    )
-    gate_chi2: float = Field(
-        18.42,
-        ge=0.0,
-        description="a fix farther from the predicted antenna than this squared Mahalanobis "
-        "distance (2 dof, 18.42 = p 1e-4) is rejected; 0 = no gate",
-    )
-    gate_consistent: int = Field(
-        3,
-        ge=0,
-        description="this many fixes in a row beyond the gate that agree with each other "
-        "(each one's offset from the predicted antenna within its own and the previous "
-        "one's noise and the odometry's between them) say the pose drifted, not the fixes: "
-        "the last is taken and the gate widened by the offset until a fix passes it again; "
-        "0 = never (a multipath jump is a lone fix, it agrees with no other)",
-    )
-    gate_reacquire: int = Field(
-        10, ge=0, description="after this many fixes in a row beyond the gate, take the next"
-    )
-    antenna: tuple[float, float, float] = Field(
-        (0.0, 0.0, 0.0), description="m, antenna in the robot frame when a fix does not say"
     )
 
 
