@@ -87,6 +87,43 @@ def test_marker_array_and_paths(tmp_path: Path, sample_snapshot: MapSnapshot) ->
     np.testing.assert_allclose([drift.x, drift.y], snap.dead_reckoning["husky"].poses[-1, :2])
 
 
+def test_messages_written_item_by_item_are_the_whole_messages(
+    tmp_path: Path, sample_snapshot: MapSnapshot
+) -> None:
+    """The MarkerArray and Paths are serialised marker by marker and pose by pose (no
+    100,000 marker objects at once): byte for byte the whole message's serialisation."""
+    from agrislam.ros.messages import MARKER_ARRAY, PATH, MessageFactory
+    from agrislam.sinks.ros_map import plant_markers, snapshot_time, trajectory_path
+
+    snap = sample_snapshot
+    path = write_map_mcap(snap, tmp_path / "map.mcap", "colour")
+    make = MessageFactory("humble")
+    t = snapshot_time(snap)
+    whole = {
+        "/agrislam/plants": make.serialize(plant_markers(snap, make, "colour", t), MARKER_ARRAY)
+    }
+    for kind, trajectories in (
+        ("trajectory", snap.trajectories),
+        ("dead_reckoning", snap.dead_reckoning),
+    ):
+        for robot, trajectory in trajectories.items():
+            whole[f"/agrislam/{kind}/{robot}"] = make.serialize(
+                trajectory_path(trajectory, make), PATH
+            )
+    with AnyReader([path]) as reader:
+        written = {conn.topic: bytes(raw) for conn, _, raw in reader.messages()}
+    assert written == whole
+    with pytest.raises(ValueError, match="2 visualization_msgs/msg/Marker items, 3 announced"):
+        markers = plant_markers(snap, make).markers[:2]
+        make.serialize_streamed(
+            make.T[MARKER_ARRAY](markers=[]),
+            MARKER_ARRAY,
+            markers,
+            3,
+            "visualization_msgs/msg/Marker",
+        )
+
+
 def test_mcap_is_a_plain_ros2_recording(tmp_path: Path, sample_snapshot: MapSnapshot) -> None:
     from mcap.reader import make_reader
 
