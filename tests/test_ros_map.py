@@ -224,3 +224,35 @@ def test_foxglove_scene(tmp_path: Path, sample_snapshot: MapSnapshot) -> None:
     with pytest.raises(FileExistsError):
         write_foxglove_mcap(snap, path)  # no silent overwrite
     write_foxglove_mcap(snap, path, overwrite=True)
+
+
+def test_foxglove_plants_encoded_entity_by_entity(
+    tmp_path: Path, sample_snapshot: MapSnapshot
+) -> None:
+    """The plants' SceneUpdate is encoded entity by entity (no 100,000 entities held at
+    once): byte for byte the SDK's encoding of the whole message, on a channel with the
+    schema the SDK's SceneUpdateChannel gives it."""
+    pytest.importorskip("foxglove")
+    from foxglove import messages as m
+    from mcap.reader import make_reader
+
+    from agrislam.sinks.foxglove import plant_entities, write_foxglove_mcap
+
+    snap = sample_snapshot
+    path = write_foxglove_mcap(snap, tmp_path / "scene.mcap", "size", stamp=12.5)
+    whole = m.SceneUpdate(entities=list(plant_entities(snap, "size", 0.15, 12.5))).encode()
+    with path.open("rb") as f:
+        found = {
+            channel.topic: (schema, channel, message)
+            for schema, channel, message in make_reader(f).iter_messages()
+        }
+    schema, channel, message = found["/agrislam/plants"]
+    _, rows_channel, _ = found["/agrislam/rows"]  # written by the SDK's SceneUpdateChannel
+    assert message.data == whole and message.log_time == 12_500_000_000
+    assert (schema.name, schema.encoding, channel.message_encoding) == (
+        "foxglove.SceneUpdate",
+        "protobuf",
+        "protobuf",
+    )
+    assert schema.data == m.SceneUpdate.get_schema().data
+    assert channel.schema_id == rows_channel.schema_id and channel.metadata == rows_channel.metadata
