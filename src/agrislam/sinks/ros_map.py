@@ -101,23 +101,13 @@ def plant_markers(
     labels: bool = True,
 ) -> object:
     """The MarkerArray of the plant map (see the module docstring)."""
-    _, markers = _plant_markers(snapshot, make, attribute, t, frame, diameter, labels)
+    markers = _marker_stream(snapshot, make, attribute, t, frame, diameter, labels)
     return make.T[MARKER_ARRAY](markers=list(markers))
 
 
-def _plant_markers(
-    snapshot: MapSnapshot,
-    make: MessageFactory,
-    attribute: str | None,
-    t: float,
-    frame: str,
-    diameter: float,
-    labels: bool,
-) -> tuple[int, Iterator[object]]:
-    """How many markers the plant map has, and the markers one by one."""
-    rows = row_segments(snapshot)
-    count = 1 + len(snapshot.objects) * (3 if labels else 2) + len(rows)
-    return count, _marker_stream(snapshot, make, attribute, t, frame, diameter, labels, rows)
+def marker_count(snapshot: MapSnapshot, labels: bool) -> int:
+    """How many markers `plant_markers` gives: DELETEALL, 2 or 3 per plant, one per row."""
+    return 1 + len(snapshot.objects) * (3 if labels else 2) + len(row_segments(snapshot))
 
 
 def _marker_stream(
@@ -128,8 +118,8 @@ def _marker_stream(
     frame: str,
     diameter: float,
     labels: bool,
-    rows: list,
 ) -> Iterator[object]:
+    """The markers of `plant_markers` one by one."""
     objects = snapshot.objects
     style = plant_style(snapshot, attribute)
     build = _MarkerBuilder(make, t, frame)
@@ -165,7 +155,7 @@ def _marker_stream(
                 (1.0, 1.0, 1.0, 1.0),
                 f"{ident} {style.labels[i]}",
             )
-    for r, (p0, p1) in enumerate(rows):
+    for r, (p0, p1) in enumerate(row_segments(snapshot)):
         yield build.marker(
             "rows",
             r,
@@ -217,7 +207,8 @@ def write_map_mcap(
     ns = seconds_to_ns(t)
     with open_ros2_writer(path, "mcap", compress=True) as writer:
         conn = writer.add_connection(PLANTS_TOPIC, MARKER_ARRAY, typestore=make.store)
-        count, markers = _plant_markers(snapshot, make, attribute, t, frame, diameter, labels)
+        count = marker_count(snapshot, labels)
+        markers = _marker_stream(snapshot, make, attribute, t, frame, diameter, labels)
         empty = make.T[MARKER_ARRAY](markers=[])
         writer.write(
             conn, ns, make.serialize_streamed(empty, MARKER_ARRAY, markers, count, MARKER_MSG)
