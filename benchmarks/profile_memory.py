@@ -7,7 +7,7 @@ One survey (the simulator as the source) is mapped without outputs; then
   (`/proc/self/clear_refs`) and tracemalloc tracing it: its rise in peak RSS above what
   the process held before it, and its peak of Python allocations.
 
-    python benchmarks/profile_memory.py [--plants 2000] [--seed 2]
+    python benchmarks/profile_memory.py [--plants 2000] [--seed 2] [--trace]
 
 Linux only (`/proc/self/status`, `malloc_trim`).
 """
@@ -50,13 +50,15 @@ def reset_peak() -> None:
     Path("/proc/self/clear_refs").write_text("5")
 
 
-def measured(name: str, write: Callable[[Path], Any], out: Path, rows: list) -> None:
-    """Run one writer; its rise in peak RSS and its Python allocation peak."""
+def measured(name: str, write: Callable[[Path], Any], out: Path, rows: list, trace: bool) -> None:
+    """Run one writer; its rise in peak RSS and (`trace`) its Python allocation peak
+    (tracemalloc's own bookkeeping then adds to the RSS)."""
     held = settle()
     reset_peak()
-    tracemalloc.start()
+    if trace:
+        tracemalloc.start()
     write(out / name)
-    _, py_peak = tracemalloc.get_traced_memory()
+    py_peak = tracemalloc.get_traced_memory()[1] if trace else float("nan")
     tracemalloc.stop()
     rows.append((name, status_mb("VmHWM") - held, py_peak / 2**20))
 
@@ -65,6 +67,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--plants", type=int, default=2000)
     parser.add_argument("--seed", type=int, default=2)
+    parser.add_argument("--trace", action="store_true", help="also tracemalloc each writer")
     args = parser.parse_args()
 
     from agrislam import pipeline
@@ -106,7 +109,7 @@ def main() -> None:
     rows: list[tuple[str, float, float]] = []
     with tempfile.TemporaryDirectory() as out:
         for name, write in writers:
-            measured(name, write, Path(out), rows)
+            measured(name, write, Path(out), rows, args.trace)
 
     # the mapping's parts, released one by one
     before = settle()
