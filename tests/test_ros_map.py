@@ -87,6 +87,43 @@ def test_marker_array_and_paths(tmp_path: Path, sample_snapshot: MapSnapshot) ->
     np.testing.assert_allclose([drift.x, drift.y], snap.dead_reckoning["husky"].poses[-1, :2])
 
 
+def test_messages_written_item_by_item_are_the_whole_messages(
+    tmp_path: Path, sample_snapshot: MapSnapshot
+) -> None:
+    """The MarkerArray and Paths are serialised marker by marker and pose by pose (no
+    100,000 marker objects at once): byte for byte the whole message's serialisation."""
+    from agrislam.ros.messages import MARKER_ARRAY, PATH, MessageFactory
+    from agrislam.sinks.ros_map import plant_markers, snapshot_time, trajectory_path
+
+    snap = sample_snapshot
+    path = write_map_mcap(snap, tmp_path / "map.mcap", "colour")
+    make = MessageFactory("humble")
+    t = snapshot_time(snap)
+    whole = {
+        "/agrislam/plants": make.serialize(plant_markers(snap, make, "colour", t), MARKER_ARRAY)
+    }
+    for kind, trajectories in (
+        ("trajectory", snap.trajectories),
+        ("dead_reckoning", snap.dead_reckoning),
+    ):
+        for robot, trajectory in trajectories.items():
+            whole[f"/agrislam/{kind}/{robot}"] = make.serialize(
+                trajectory_path(trajectory, make), PATH
+            )
+    with AnyReader([path]) as reader:
+        written = {conn.topic: bytes(raw) for conn, _, raw in reader.messages()}
+    assert written == whole
+    with pytest.raises(ValueError, match="2 visualization_msgs/msg/Marker items, 3 announced"):
+        markers = plant_markers(snap, make).markers[:2]
+        make.serialize_streamed(
+            make.T[MARKER_ARRAY](markers=[]),
+            MARKER_ARRAY,
+            markers,
+            3,
+            "visualization_msgs/msg/Marker",
+        )
+
+
 def test_mcap_is_a_plain_ros2_recording(tmp_path: Path, sample_snapshot: MapSnapshot) -> None:
     from mcap.reader import make_reader
 
@@ -187,3 +224,35 @@ def test_foxglove_scene(tmp_path: Path, sample_snapshot: MapSnapshot) -> None:
     with pytest.raises(FileExistsError):
         write_foxglove_mcap(snap, path)  # no silent overwrite
     write_foxglove_mcap(snap, path, overwrite=True)
+
+
+def test_foxglove_plants_encoded_entity_by_entity(
+    tmp_path: Path, sample_snapshot: MapSnapshot
+) -> None:
+    """The plants' SceneUpdate is encoded entity by entity (no 100,000 entities held at
+    once): byte for byte the SDK's encoding of the whole message, on a channel with the
+    schema the SDK's SceneUpdateChannel gives it."""
+    pytest.importorskip("foxglove")
+    from foxglove import messages as m
+    from mcap.reader import make_reader
+
+    from agrislam.sinks.foxglove import plant_entities, write_foxglove_mcap
+
+    snap = sample_snapshot
+    path = write_foxglove_mcap(snap, tmp_path / "scene.mcap", "size", stamp=12.5)
+    whole = m.SceneUpdate(entities=list(plant_entities(snap, "size", 0.15, 12.5))).encode()
+    with path.open("rb") as f:
+        found = {
+            channel.topic: (schema, channel, message)
+            for schema, channel, message in make_reader(f).iter_messages()
+        }
+    schema, channel, message = found["/agrislam/plants"]
+    _, rows_channel, _ = found["/agrislam/rows"]  # written by the SDK's SceneUpdateChannel
+    assert message.data == whole and message.log_time == 12_500_000_000
+    assert (schema.name, schema.encoding, channel.message_encoding) == (
+        "foxglove.SceneUpdate",
+        "protobuf",
+        "protobuf",
+    )
+    assert schema.data == m.SceneUpdate.get_schema().data
+    assert channel.schema_id == rows_channel.schema_id and channel.metadata == rows_channel.metadata

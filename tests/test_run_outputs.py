@@ -189,3 +189,21 @@ def test_an_interrupt_between_records_writes_the_map_so_far(tmp_path):
         run_survey(open_source(SMALL), WorldModel(), tmp_path / "run", progress)
     assert isinstance(err.value.__cause__, KeyboardInterrupt)
     assert "objects.csv" in {p.name for p in err.value.result.outputs}
+
+
+def test_truth_trajectories_straight_from_the_arrays():
+    """The report's true trajectories come from the truth's arrays (no object per pose):
+    the same as evaluation.truth_trajectories of its poses, also for poses out of order."""
+    from agrislam.evaluation import truth_trajectories
+    from agrislam.pipeline import Truth
+    from agrislam.records import TruthPose
+
+    truth = Truth()
+    rng = np.random.default_rng(1)
+    for t, robot in [(0.0, "a"), (2.0, "b"), (1.0, "a"), (1.0, "a"), (0.5, "b"), (3.0, "a")]:
+        truth.add_pose(TruthPose(t=t, robot=robot, pose=rng.normal(size=3)))
+    got, expected = truth.trajectories(), truth_trajectories(truth.poses)
+    assert list(got) == list(expected) == ["a", "b"]
+    for robot, trajectory in expected.items():
+        np.testing.assert_array_equal(got[robot].t, trajectory.t, strict=True)
+        np.testing.assert_array_equal(got[robot].poses, trajectory.poses, strict=True)

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from agrislam.config import COLOURS, SIZES, FieldSchema
+from agrislam.sinks import csv as sinks_csv
 from agrislam.sinks.csv import write_objects_csv, write_trajectory_csv
 from agrislam.snapshot import MapSnapshot, ObjectMap
 
@@ -220,3 +221,27 @@ def test_objects_csv_100k_objects_is_fast(snapshot_factory, tmp_path):
     with open(tmp_path / "objects.csv", encoding="utf-8") as f:
         assert sum(1 for _ in f) == 100_001
     assert elapsed < 5.0, f"100,000 objects took {elapsed:.1f} s"
+
+
+def test_rows_formatted_a_chunk_at_a_time_are_the_same_text(sample_snapshot, tmp_path, monkeypatch):
+    """Rows are formatted CHUNK at a time (no list of strings per column of 100,000
+    plants): the same text wherever the chunk boundaries fall, also for rows quoted whole
+    because a name holds a lone carriage return."""
+    robot = sample_snapshot.trajectories["spot"]
+    odd = {v: dataclasses.replace(robot, robot=v) for v in AWKWARD}
+    awkward = dataclasses.replace(sample_snapshot, trajectories=odd)
+    whole = [
+        write(snap, tmp_path / f"{n}.csv").read_bytes()
+        for n, (write, snap) in enumerate(
+            [(write_objects_csv, sample_snapshot), (write_trajectory_csv, awkward)]
+        )
+    ]
+    assert b'"carriage\rreturn"' in whole[1]  # quoted: a lone \r would split the row
+    monkeypatch.setattr(sinks_csv, "CHUNK", 7)
+    chunked = [
+        write(snap, tmp_path / f"c{n}.csv").read_bytes()
+        for n, (write, snap) in enumerate(
+            [(write_objects_csv, sample_snapshot), (write_trajectory_csv, awkward)]
+        )
+    ]
+    assert chunked == whole

@@ -11,7 +11,9 @@ import numpy as np
 import pytest
 
 from agrislam.records import Anchor
+from agrislam.sinks import geojson
 from agrislam.sinks.geojson import (
+    geojson_dict,
     map_to_lonlat,
     position_sigma,
     write_geojson,
@@ -134,3 +136,19 @@ def test_position_sigma_is_the_largest_axis():
     cov = np.array([[[0.04, 0.0], [0.0, 0.01]], [[2e-4, 1e-4], [1e-4, 2e-4]]])
     # eigenvalues of the second: 2e-4 +- 1e-4
     np.testing.assert_allclose(position_sigma(cov), [0.2, math.sqrt(3e-4)], rtol=1e-12)
+
+
+def test_written_feature_by_feature_is_the_whole_collection(sample_snapshot, tmp_path, monkeypatch):
+    """The file is written feature by feature, the objects' values a chunk at a time (no
+    list of 100,000 features): the same text as the whole collection dumped at once, also
+    when a chunk boundary falls inside the objects."""
+    monkeypatch.setattr(geojson, "CHUNK", 7)  # 30 objects: 5 chunks, the last partial
+    text = write_geojson(sample_snapshot, tmp_path / "m.geojson").read_text(encoding="utf-8")
+    whole = json.dumps(geojson_dict(sample_snapshot), allow_nan=False, separators=(",", ":"))
+    assert text == whole + "\n"
+    ids = [f.get("id") for f in json.loads(text)["features"]]
+    assert ids[: len(sample_snapshot.objects)] == sample_snapshot.objects.ids.tolist()
+    assert not (tmp_path / "none.geojson").exists()
+    with pytest.raises(ValueError, match="no anchor"):  # before the file is opened
+        write_geojson(dataclasses.replace(sample_snapshot, anchor=None), tmp_path / "none.geojson")
+    assert not (tmp_path / "none.geojson").exists()

@@ -17,7 +17,7 @@ import numpy as np
 
 from agrislam.checkpoint import FORMAT, Checkpoints, RunState, adopt
 from agrislam.config import OutputsConfig
-from agrislam.evaluation import association_counts, evaluate, truth_trajectories, write_metrics
+from agrislam.evaluation import association_counts, evaluate, write_metrics
 from agrislam.growing import GrowingRows
 from agrislam.perception.label_map import LabelMap
 from agrislam.records import Detections, Meta, Record, TruthObject, TruthPose
@@ -34,7 +34,7 @@ from agrislam.sinks.ros_map import write_map_mcap
 from agrislam.sinks.run_folder import RunFolder, RunFolderError
 from agrislam.sinks.shapefile import write_shapefile
 from agrislam.sinks.sqlite import save_map, write_checkpoint
-from agrislam.snapshot import MapSnapshot
+from agrislam.snapshot import MapSnapshot, Trajectory
 from agrislam.sources.base import Source, SourceError, SourceReport
 from agrislam.sources.sync import synchronise
 from agrislam.world import WorldModel
@@ -67,6 +67,15 @@ class Truth:
         for robot, (times, poses) in self.tracks.items():
             for t, pose in zip(times.array.tolist(), poses.array, strict=True):
                 yield TruthPose(t=t, robot=robot, pose=pose.copy())
+
+    def trajectories(self) -> dict[str, Trajectory]:
+        """Each robot's true poses in time order (`evaluation.truth_trajectories` of
+        `poses`), straight from the arrays: no TruthPose object per pose."""
+        out = {}
+        for robot, (times, poses) in self.tracks.items():
+            order = np.argsort(times.array, kind="stable")
+            out[robot] = Trajectory(robot, times.array[order], poses.array[order])
+        return out
 
     def saw(self, truth_ids: Iterable[str | None], object_ids: np.ndarray) -> None:
         """A frame's detections: the truth id of each (None: clutter) and its object; kept
@@ -419,7 +428,7 @@ def write_outputs(
         writers.append(("map.mcap", lambda p: write_map_mcap(snapshot, p)))
         if importlib.util.find_spec("foxglove") is not None:  # the optional `foxglove` extra
             writers.append(("map_foxglove.mcap", lambda p: write_foxglove_mcap(snapshot, p)))
-        trajectories = truth_trajectories(truth.poses)
+        trajectories = truth.trajectories()
         writers.append(
             ("report.png", lambda p: write_report(snapshot, p, metrics=metrics, truth=trajectories))
         )

@@ -183,7 +183,7 @@ class BackendBase:
         self._add(self.graph.add_factor(Factor(DETECTION, (pkey, okey), value, cov)))
 
     def object_ids(self) -> np.ndarray:
-        return np.fromiter(self.graph.objects, dtype=np.int64, count=len(self.graph.objects))
+        return self.graph.objects.ids()
 
     def merge_objects(self, keep: int, drop: int) -> None:
         """All factors of `drop` move to `keep` (sec. 2.6.3); a second row constraint is not

@@ -14,6 +14,7 @@ from agrislam.config import SlamConfig
 from agrislam.geometry.factor_store import Factor, FactorStore
 from agrislam.geometry.gnss import gnss_factor
 from agrislam.geometry.noise import gaussian, one_direction, robust, row_direction, row_normal
+from agrislam.geometry.object_nodes import ObjectNodes
 
 # key layout: one symbol letter per node kind; robot r's pose i is x(r * POSES_PER_ROBOT + i)
 POSES_PER_ROBOT = 1 << 40
@@ -80,7 +81,7 @@ class SurveyGraph:
 
     def __init__(self) -> None:
         self.robots: dict[str, RobotChain] = {}
-        self.objects: dict[int, np.ndarray] = {}  # id -> initial map-frame position
+        self.objects = ObjectNodes()  # id -> initial map-frame position, as arrays
         self.rows: dict[int, RowNode] = {}
         self.factors = FactorStore()  # factor id -> Factor, as rows of arrays
         self.row_of: dict[int, int] = {}  # object id -> row id of its row constraint
@@ -126,8 +127,8 @@ class SurveyGraph:
 
     def require_objects(self, object_ids: np.ndarray) -> list[int]:
         """`require_object` of many ids at once."""
-        missing = [i for i in np.asarray(object_ids).tolist() if i not in self.objects]
-        if missing:
+        missing = self.objects.missing(object_ids)
+        if len(missing):
             raise KeyError(f"object {missing[0]} is not in the graph")
         return object_keys(object_ids)
 

@@ -18,14 +18,17 @@ reader prefers; these are for writing bags and for bags without embedded definit
 from __future__ import annotations
 
 import shutil
+import sys
 import tempfile
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
+from rosbags.interfaces import Nodetype
 from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin, Writer
+from rosbags.serde.utils import align  # CDR alignment of a type (not re-exported)
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from rosbags.typesys.store import Typestore
 
@@ -276,6 +279,37 @@ class MessageFactory:
         if self.ros1:
             return bytes(self.store.serialize_ros1(msg, msgtype))
         return bytes(self.store.serialize_cdr(msg, msgtype))
+
+    def serialize_streamed(
+        self, msg: Any, msgtype: str, items: Iterable[Any], count: int, item_type: str
+    ) -> bytearray:
+        """The CDR of `msg` whose last field is a sequence, given empty in `msg`, of the
+        `count` `item_type`s `items` (a MarkerArray's markers, a Path's poses): byte for
+        byte what `serialize` gives with the items in that field, without every item held
+        as an object at once (100,000 plants' markers)."""
+        if self.ros1:
+            raise ValueError("serialize_streamed writes CDR (ROS 2) only")
+        item = self.store.get_msgdef(item_type)
+        little = sys.byteorder == "little"
+        pack = item.serialize_cdr_le if little else item.serialize_cdr_be
+        out = bytearray(self.store.serialize_cdr(msg, msgtype, little_endian=little))
+        if out[-4:] != bytes(4):
+            raise ValueError(f"serialize_streamed: {msgtype} does not end in an empty sequence")
+        out[-4:] = count.to_bytes(4, "little" if little else "big")
+        pos, n = len(out) - 4, 0  # within the payload (after the 4-byte encapsulation header)
+        first = align((Nodetype.NAME, item_type), self.store)  # as rosbags' sequences do
+        for one in items:
+            pos = (pos + first - 1) & -first
+            base = pos & ~7  # CDR aligns relative to the payload: keep pos modulo 8
+            end = item.getsize_cdr(pos, one, self.store)
+            chunk = bytearray(end - base)
+            pack(memoryview(chunk), pos - base, one, self.store)
+            out += bytes(pos - len(out) + 4)  # the alignment before the item
+            out += memoryview(chunk)[pos - base :]
+            pos, n = end, n + 1
+        if n != count:
+            raise ValueError(f"serialize_streamed: {n} {item_type} items, {count} announced")
+        return out
 
     # ------------------------------------------------------------ geometry
 

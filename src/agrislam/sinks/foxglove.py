@@ -12,6 +12,7 @@ Foxglove lists when a plant is clicked), ``/agrislam/rows`` (SceneUpdate, the ro
 
 from __future__ import annotations
 
+from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -54,23 +55,81 @@ def _color(m: Any, rgba: Any) -> Any:
     return m.Color(r=r, g=g, b=b, a=a)
 
 
-def entity_metadata(snapshot: MapSnapshot) -> list[list[tuple[str, str]]]:
-    """Per object: its measurement count, interest and every attribute's distribution
-    ("size" -> "small 0.10, medium 0.20, big 0.70") or mean and std."""
+def entity_metadata(snapshot: MapSnapshot) -> Iterator[list[tuple[str, str]]]:
+    """Per object, one by one: its measurement count, interest and every attribute's
+    distribution ("size" -> "small 0.10, medium 0.20, big 0.70") or mean and std."""
     objects = snapshot.objects
-    k = len(objects)
-    out: list[list[tuple[str, str]]] = [
-        [("n_meas", str(int(n))), ("interest", f"{float(h):.3f}")]
-        for n, h in zip(np.asarray(objects.n_meas), np.asarray(objects.interest), strict=True)
-    ]
-    for name, (values, belief) in discrete_columns(snapshot).items():
-        for i in range(k):
-            out[i].append(
+    discrete = list(discrete_columns(snapshot).items())
+    continuous = list(objects.continuous.items())
+    n_meas, interest = np.asarray(objects.n_meas), np.asarray(objects.interest)
+    for i in range(len(objects)):
+        out = [("n_meas", str(int(n_meas[i]))), ("interest", f"{float(interest[i]):.3f}")]
+        for name, (values, belief) in discrete:
+            out.append(
                 (name, ", ".join(f"{v} {p:.2f}" for v, p in zip(values, belief[i], strict=True)))
             )
-    for name, (mean, var) in objects.continuous.items():
-        for i in range(k):
-            out[i].append((name, f"{float(mean[i]):.4g} ± {float(np.sqrt(var[i])):.2g}"))
+        for name, (mean, var) in continuous:
+            out.append((name, f"{float(mean[i]):.4g} ± {float(np.sqrt(var[i])):.2g}"))
+        yield out
+
+
+def plant_entities(
+    snapshot: MapSnapshot, attribute: str | None, diameter: float, t: float
+) -> Iterator[Any]:
+    """The plants' SceneEntities, one by one (see the module docstring)."""
+    m = _sdk()[2]
+    ts = _timestamp(m, t)
+    objects = snapshot.objects
+    style = plant_style(snapshot, attribute)
+    xy = np.asarray(objects.xy, dtype=float).reshape(-1, 2)
+    size = style.sizes(diameter)
+    axes, heading = covariance_ellipses(objects.cov) if len(objects) else (np.empty((0, 2)), [])
+    metadata = entity_metadata(snapshot)
+    for i, ident in enumerate(np.asarray(objects.ids)):
+        x, y, s = xy[i, 0], xy[i, 1], float(size[i])
+        a, b = (max(float(v), 0.01) for v in axes[i])
+        yield m.SceneEntity(
+            timestamp=ts,
+            frame_id=FRAME,
+            id=str(int(ident)),
+            metadata=[m.KeyValuePair(key=key, value=v) for key, v in next(metadata)],
+            spheres=[
+                m.SpherePrimitive(
+                    pose=_pose(m, x, y, 0.5 * s),
+                    size=m.Vector3(x=s, y=s, z=s),
+                    color=_color(m, style.rgba[i]),
+                )
+            ],
+            cylinders=[
+                m.CylinderPrimitive(
+                    pose=_pose(m, x, y, 0.0, float(heading[i])),
+                    size=m.Vector3(x=a, y=b, z=0.005),
+                    bottom_scale=1.0,
+                    top_scale=1.0,
+                    color=m.Color(r=0.5, g=0.5, b=0.5, a=0.35),
+                )
+            ],
+            texts=[
+                m.TextPrimitive(
+                    pose=_pose(m, x, y, s + 0.08),
+                    billboard=True,
+                    font_size=12.0,
+                    scale_invariant=True,
+                    color=m.Color(r=1.0, g=1.0, b=1.0, a=1.0),
+                    text=f"{int(ident)} {style.labels[i]}",
+                )
+            ],
+        )
+
+
+def scene_update_bytes(entities: Iterable[Any]) -> bytearray:
+    """The protobuf of a SceneUpdate of `entities`, encoded entity by entity: a repeated
+    field's encoding is its items' encodings one after the other, so this is byte for
+    byte `SceneUpdate(entities=[...]).encode()` without every entity held at once."""
+    m = _sdk()[2]
+    out = bytearray()
+    for entity in entities:
+        out += m.SceneUpdate(entities=[entity]).encode()
     return out
 
 
@@ -88,50 +147,7 @@ def write_foxglove_mcap(
     path = Path(path)
     t = snapshot_time(snapshot) if stamp is None else stamp
     ts, log_time = _timestamp(m, t), round(t * 1e9)
-    objects = snapshot.objects
-    style = plant_style(snapshot, attribute)
-    xy = np.asarray(objects.xy, dtype=float).reshape(-1, 2)
-    size = style.sizes(diameter)
-    axes, heading = covariance_ellipses(objects.cov) if len(objects) else (np.empty((0, 2)), [])
-    metadata = entity_metadata(snapshot)
-    entities = []
-    for i, ident in enumerate(np.asarray(objects.ids)):
-        x, y, s = xy[i, 0], xy[i, 1], float(size[i])
-        a, b = (max(float(v), 0.01) for v in axes[i])
-        entities.append(
-            m.SceneEntity(
-                timestamp=ts,
-                frame_id=FRAME,
-                id=str(int(ident)),
-                metadata=[m.KeyValuePair(key=key, value=v) for key, v in metadata[i]],
-                spheres=[
-                    m.SpherePrimitive(
-                        pose=_pose(m, x, y, 0.5 * s),
-                        size=m.Vector3(x=s, y=s, z=s),
-                        color=_color(m, style.rgba[i]),
-                    )
-                ],
-                cylinders=[
-                    m.CylinderPrimitive(
-                        pose=_pose(m, x, y, 0.0, float(heading[i])),
-                        size=m.Vector3(x=a, y=b, z=0.005),
-                        bottom_scale=1.0,
-                        top_scale=1.0,
-                        color=m.Color(r=0.5, g=0.5, b=0.5, a=0.35),
-                    )
-                ],
-                texts=[
-                    m.TextPrimitive(
-                        pose=_pose(m, x, y, s + 0.08),
-                        billboard=True,
-                        font_size=12.0,
-                        scale_invariant=True,
-                        color=m.Color(r=1.0, g=1.0, b=1.0, a=1.0),
-                        text=f"{int(ident)} {style.labels[i]}",
-                    )
-                ],
-            )
-        )
+    plants = scene_update_bytes(plant_entities(snapshot, attribute, diameter, t))
     rows = [
         m.SceneEntity(
             timestamp=ts,
@@ -151,8 +167,11 @@ def write_foxglove_mcap(
     ]
     context = foxglove.Context()
     with foxglove.open_mcap(path, allow_overwrite=overwrite, context=context):
-        plants = channels.SceneUpdateChannel("/agrislam/plants", context=context)
-        plants.log(m.SceneUpdate(entities=entities), log_time=log_time)
+        schema = m.SceneUpdate.get_schema()  # the channel SceneUpdateChannel makes
+        channel = foxglove.Channel(
+            "/agrislam/plants", message_encoding=schema.encoding, schema=schema, context=context
+        )
+        channel.log(bytes(plants), log_time=log_time)
         if rows:
             rows_channel = channels.SceneUpdateChannel("/agrislam/rows", context=context)
             rows_channel.log(m.SceneUpdate(entities=rows), log_time=log_time)

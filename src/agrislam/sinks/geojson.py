@@ -9,6 +9,7 @@ from east towards north (spec/log-format.md "meta"); PROJ turns map metres into 
 from __future__ import annotations
 
 import json
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -29,8 +30,18 @@ def map_to_lonlat(xy: np.ndarray, anchor: Anchor) -> np.ndarray:
     return MapFrame(anchor).to_wgs84(xy)[:, :2]
 
 
+CHUNK = 4096  # objects turned into JSON values at a time: no list per column of the map
+
+
 def geojson_dict(snapshot: MapSnapshot) -> dict[str, Any]:
     """The FeatureCollection: one Point per object, one LineString per robot trajectory."""
+    return {"type": "FeatureCollection", "features": list(features(snapshot))}
+
+
+def features(snapshot: MapSnapshot) -> Iterator[dict[str, Any]]:
+    """The FeatureCollection's features one by one: the objects' Points (their values
+    converted a chunk of objects at a time), then each trajectory's LineString. A map
+    without a (valid) anchor is a ValueError here, before the first feature."""
     anchor = snapshot.anchor
     if anchor is None:
         raise ValueError(
@@ -38,55 +49,62 @@ def geojson_dict(snapshot: MapSnapshot) -> dict[str, Any]:
             "cannot be placed on the globe; write objects.csv instead or add an anchor"
         )
     check_anchor(anchor)
+    return _features(snapshot, anchor)
+
+
+def _features(snapshot: MapSnapshot, anchor: Anchor) -> Iterator[dict[str, Any]]:
     columns = object_columns(snapshot, distributions=False)
     lonlat = np.round(
         map_to_lonlat(np.column_stack([columns["x"], columns["y"]]), anchor), DEGREE_DECIMALS
     )
     properties = {
-        name: _json_values(col)
+        name: col
         for name, col in columns.items()
         if name not in ("x", "y", "cov_xx", "cov_xy", "cov_yy")
     }
-    properties["sigma_m"] = _json_values(position_sigma(snapshot.objects.cov))
+    properties["sigma_m"] = position_sigma(snapshot.objects.cov)
     names = list(properties)
-    features = [
-        {
-            "type": "Feature",
-            "id": props[0],
-            "geometry": {"type": "Point", "coordinates": coords},
-            "properties": {"kind": "object", **dict(zip(names, props, strict=True))},
-        }
-        for coords, props in zip(
-            lonlat.tolist(), zip(*properties.values(), strict=True), strict=True
-        )
-    ]
+    for start in range(0, len(lonlat), CHUNK):
+        part = slice(start, start + CHUNK)
+        values = [_json_values(properties[name][part]) for name in names]
+        for coords, props in zip(lonlat[part].tolist(), zip(*values, strict=True), strict=True):
+            yield {
+                "type": "Feature",
+                "id": props[0],
+                "geometry": {"type": "Point", "coordinates": coords},
+                "properties": {"kind": "object", **dict(zip(names, props, strict=True))},
+            }
     for source, attr in TRAJECTORY_SOURCES.items():
         for traj in getattr(snapshot, attr).values():
             poses = np.asarray(traj.poses, dtype=float).reshape(-1, 3)
             if len(poses) < 2:  # RFC 7946 3.1.4: a LineString has two or more positions
                 continue
             line = np.round(map_to_lonlat(poses[:, :2], anchor), DEGREE_DECIMALS)
-            features.append(
-                {
-                    "type": "Feature",
-                    "geometry": {"type": "LineString", "coordinates": line.tolist()},
-                    "properties": {
-                        "kind": "trajectory",
-                        "robot": traj.robot,
-                        "source": source,
-                        "t_start": float(traj.t[0]),
-                        "t_end": float(traj.t[-1]),
-                    },
-                }
-            )
-    return {"type": "FeatureCollection", "features": features}
+            yield {
+                "type": "Feature",
+                "geometry": {"type": "LineString", "coordinates": line.tolist()},
+                "properties": {
+                    "kind": "trajectory",
+                    "robot": traj.robot,
+                    "source": source,
+                    "t_start": float(traj.t[0]),
+                    "t_end": float(traj.t[-1]),
+                },
+            }
 
 
 def write_geojson(snapshot: MapSnapshot, path: str | Path) -> Path:
-    """Write `map.geojson` (RFC 7946, WGS84 lon/lat); the snapshot must have an anchor."""
-    path = Path(path)
-    text = json.dumps(geojson_dict(snapshot), allow_nan=False, separators=(",", ":"))
-    path.write_text(text + "\n", encoding="utf-8")
+    """Write `map.geojson` (RFC 7946, WGS84 lon/lat) feature by feature: the same text
+    as `json.dumps(geojson_dict(snapshot))`, without the whole collection in memory; the
+    snapshot must have an anchor."""
+    path, stream = Path(path), features(snapshot)
+    with path.open("w", encoding="utf-8") as out:
+        out.write('{"type":"FeatureCollection","features":[')
+        for n, feature in enumerate(stream):
+            out.write(
+                ("," if n else "") + json.dumps(feature, allow_nan=False, separators=(",", ":"))
+            )
+        out.write("]}\n")
     return path
 
 

@@ -14,6 +14,7 @@ object, id = object id; ``uncertainty``: the 2-sigma position ellipse; ``labels`
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -86,6 +87,10 @@ class _MarkerBuilder:
         )
 
 
+MARKER_MSG = "visualization_msgs/msg/Marker"
+POSE_STAMPED = "geometry_msgs/msg/PoseStamped"
+
+
 def plant_markers(
     snapshot: MapSnapshot,
     make: MessageFactory,
@@ -96,70 +101,89 @@ def plant_markers(
     labels: bool = True,
 ) -> object:
     """The MarkerArray of the plant map (see the module docstring)."""
+    markers = _marker_stream(snapshot, make, attribute, t, frame, diameter, labels)
+    return make.T[MARKER_ARRAY](markers=list(markers))
+
+
+def marker_count(snapshot: MapSnapshot, labels: bool) -> int:
+    """How many markers `plant_markers` gives: DELETEALL, 2 or 3 per plant, one per row."""
+    return 1 + len(snapshot.objects) * (3 if labels else 2) + len(row_segments(snapshot))
+
+
+def _marker_stream(
+    snapshot: MapSnapshot,
+    make: MessageFactory,
+    attribute: str | None,
+    t: float,
+    frame: str,
+    diameter: float,
+    labels: bool,
+) -> Iterator[object]:
+    """The markers of `plant_markers` one by one."""
     objects = snapshot.objects
     style = plant_style(snapshot, attribute)
     build = _MarkerBuilder(make, t, frame)
-    markers = [build.marker("", 0, "SPHERE", action="DELETEALL")]  # replace an older map
-    xy = np.asarray(objects.xy, dtype=float).reshape(-1, 2).tolist()
-    size = style.sizes(diameter).tolist()
-    rgba = style.rgba.tolist()
+    yield build.marker("", 0, "SPHERE", action="DELETEALL")  # replace an older map
+    xy = np.asarray(objects.xy, dtype=float).reshape(-1, 2)
+    size = style.sizes(diameter)
+    rgba = style.rgba
     axes, heading = covariance_ellipses(objects.cov) if len(objects) else (np.empty((0, 2)), [])
     for i, ident in enumerate(np.asarray(objects.ids).tolist()):
-        x, y = xy[i]
-        s = size[i]
-        markers.append(
-            build.marker("plants", ident, "SPHERE", (x, y, 0.5 * s), 0.0, (s, s, s), rgba[i])
+        x, y = xy[i].tolist()
+        s = float(size[i])
+        yield build.marker(
+            "plants", ident, "SPHERE", (x, y, 0.5 * s), 0.0, (s, s, s), rgba[i].tolist()
         )
         a, b = (max(float(v), 0.01) for v in axes[i])
-        markers.append(
-            build.marker(
-                "uncertainty",
-                ident,
-                "CYLINDER",
-                (x, y, 0.0),
-                float(heading[i]),
-                (a, b, 0.005),
-                (0.5, 0.5, 0.5, 0.35),
-            )
+        yield build.marker(
+            "uncertainty",
+            ident,
+            "CYLINDER",
+            (x, y, 0.0),
+            float(heading[i]),
+            (a, b, 0.005),
+            (0.5, 0.5, 0.5, 0.35),
         )
         if labels:
-            markers.append(
-                build.marker(
-                    "labels",
-                    ident,
-                    "TEXT_VIEW_FACING",
-                    (x, y, s + 0.08),
-                    0.0,
-                    (0.05, 0.05, 0.05),
-                    (1.0, 1.0, 1.0, 1.0),
-                    f"{ident} {style.labels[i]}",
-                )
+            yield build.marker(
+                "labels",
+                ident,
+                "TEXT_VIEW_FACING",
+                (x, y, s + 0.08),
+                0.0,
+                (0.05, 0.05, 0.05),
+                (1.0, 1.0, 1.0, 1.0),
+                f"{ident} {style.labels[i]}",
             )
     for r, (p0, p1) in enumerate(row_segments(snapshot)):
-        markers.append(
-            build.marker(
-                "rows",
-                r,
-                "LINE_LIST",
-                scale=(0.02, 0.0, 0.0),
-                rgba=(0.55, 0.4, 0.25, 0.8),
-                points=[(p0[0], p0[1], 0.0), (p1[0], p1[1], 0.0)],
-            )
+        yield build.marker(
+            "rows",
+            r,
+            "LINE_LIST",
+            scale=(0.02, 0.0, 0.0),
+            rgba=(0.55, 0.4, 0.25, 0.8),
+            points=[(p0[0], p0[1], 0.0), (p1[0], p1[1], 0.0)],
         )
-    return make.T[MARKER_ARRAY](markers=markers)
 
 
 def trajectory_path(trajectory: Trajectory, make: MessageFactory, frame: str = "map") -> object:
+    return make.T[PATH](
+        header=_path_header(trajectory, make, frame), poses=list(_poses(trajectory, make, frame))
+    )
+
+
+def _path_header(trajectory: Trajectory, make: MessageFactory, frame: str) -> object:
+    return make.header(float(trajectory.t[-1]) if len(trajectory.t) else 0.0, frame)
+
+
+def _poses(trajectory: Trajectory, make: MessageFactory, frame: str) -> Iterator[object]:
     T = make.T
-    poses = [
-        T["geometry_msgs/msg/PoseStamped"](
+    poses = np.asarray(trajectory.poses, dtype=float)
+    for t, p in zip(trajectory.t, poses, strict=True):
+        yield T[POSE_STAMPED](
             header=make.header(float(t), frame),
             pose=make.pose((p[0], p[1], 0.0), quaternion_from_yaw(float(p[2]))),
         )
-        for t, p in zip(trajectory.t, np.asarray(trajectory.poses, dtype=float), strict=True)
-    ]
-    t_end = float(trajectory.t[-1]) if len(trajectory.t) else 0.0
-    return T[PATH](header=make.header(t_end, frame), poses=poses)
 
 
 def write_map_mcap(
@@ -183,8 +207,12 @@ def write_map_mcap(
     ns = seconds_to_ns(t)
     with open_ros2_writer(path, "mcap", compress=True) as writer:
         conn = writer.add_connection(PLANTS_TOPIC, MARKER_ARRAY, typestore=make.store)
-        msg = plant_markers(snapshot, make, attribute, t, frame, diameter, labels)
-        writer.write(conn, ns, make.serialize(msg, MARKER_ARRAY))
+        count = marker_count(snapshot, labels)
+        markers = _marker_stream(snapshot, make, attribute, t, frame, diameter, labels)
+        empty = make.T[MARKER_ARRAY](markers=[])
+        writer.write(
+            conn, ns, make.serialize_streamed(empty, MARKER_ARRAY, markers, count, MARKER_MSG)
+        )
         for kind, trajectories in (
             ("trajectory", snapshot.trajectories),
             ("dead_reckoning", snapshot.dead_reckoning),
@@ -193,7 +221,8 @@ def write_map_mcap(
                 conn = writer.add_connection(
                     f"/agrislam/{kind}/{robot}", PATH, typestore=make.store
                 )
-                writer.write(
-                    conn, ns, make.serialize(trajectory_path(trajectory, make, frame), PATH)
-                )
+                empty = make.T[PATH](header=_path_header(trajectory, make, frame), poses=[])
+                poses = _poses(trajectory, make, frame)
+                data = make.serialize_streamed(empty, PATH, poses, len(trajectory.t), POSE_STAMPED)
+                writer.write(conn, ns, data)
     return path

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import json
 import sqlite3
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator
 from contextlib import closing
 from pathlib import Path
 from typing import Any
@@ -27,6 +27,7 @@ from agrislam.snapshot import MapSnapshot, ObjectMap, RowLines, Trajectory
 FORMAT_NAME = "agrislam-map"
 FORMAT_VERSION = 1
 TRAJECTORY_KINDS = ("optimised", "dead_reckoning")
+CHUNK = 4096  # rows turned into Python values at a time
 
 TABLES = """
 CREATE TABLE format_version (name TEXT NOT NULL, version INTEGER NOT NULL);
@@ -164,13 +165,12 @@ def _write_objects(db: sqlite3.Connection, snapshot: MapSnapshot) -> None:
         n = belief.shape[1]
         db.executemany(
             "INSERT INTO discrete_beliefs VALUES (?, ?, ?, ?, ?)",
-            zip(
-                np.repeat(ids, n).tolist(),
-                [name] * belief.size,
-                np.tile(np.arange(n), len(ids)).tolist(),
-                values * len(ids),
-                belief.ravel().tolist(),
-                strict=True,
+            _rows(
+                np.repeat(ids, n),
+                np.full(belief.size, name, dtype=object),
+                np.tile(np.arange(n), len(ids)),
+                np.tile(np.asarray(values, dtype=object), len(ids)),
+                belief.ravel(),
             ),
         )
     for name, (mean, var) in objects.continuous.items():
@@ -288,9 +288,15 @@ def _read_arrays(db: sqlite3.Connection) -> dict[str, np.ndarray]:
 # ---------------------------------------------------------------------------- helpers
 
 
-def _rows(*columns: np.ndarray) -> Iterable[tuple[Any, ...]]:
-    """Row tuples of plain Python values from equal-length columns (NaN is stored as NULL)."""
-    return zip(*(np.asarray(c).tolist() for c in columns), strict=True)
+def _rows(*columns: np.ndarray) -> Iterator[tuple[Any, ...]]:
+    """Row tuples of plain Python values from equal-length columns (NaN is stored as NULL),
+    converted CHUNK rows at a time: no list of Python values per column of the whole map."""
+    arrays = [np.asarray(c) for c in columns]
+    lengths = {len(a) for a in arrays}
+    if len(lengths) > 1:
+        raise ValueError(f"columns of different lengths {sorted(lengths)}")
+    for start in range(0, max(lengths, default=0), CHUNK):
+        yield from zip(*(a[start : start + CHUNK].tolist() for a in arrays), strict=True)
 
 
 def _rows_of(ids: np.ndarray, by_id: np.ndarray, wanted: Iterable[int]) -> np.ndarray:
