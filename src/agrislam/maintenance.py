@@ -98,6 +98,7 @@ class Existence:
         self._sample: list[np.ndarray] = []
         self._n = 0
         self.stats: dict[str, float] = {}
+        self.pruned = 0
 
     def observe(self, robot_xy: np.ndarray | None) -> None:
         """A frame's detections in the robot frame (the first SAMPLE are kept)."""
@@ -119,7 +120,13 @@ class Existence:
         area = ViewArea.learned(np.vstack(self._sample), 0.0)
         hits = objects.n_meas[ids].astype(float)
         views = np.maximum(area.views(np.vstack(poses), positions(ids)), hits)
-        return np.asarray(ids, dtype=np.int64)[self.classify(hits, views)].tolist()
+        absent = np.asarray(ids, dtype=np.int64)[self.classify(hits, views)].tolist()
+        self.pruned = len(absent)
+        return absent
+
+    def report(self) -> dict[str, object]:
+        """What the test found, for the summary: the rates it learned, objects pruned."""
+        return {"enabled": self.config.existence, "pruned": self.pruned, **self.stats}
 
     def classify(self, hits: np.ndarray, views: np.ndarray) -> np.ndarray:
         """(k,) whether each object is more likely clutter than a plant: hard EM of the

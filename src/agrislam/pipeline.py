@@ -115,6 +115,7 @@ class RunResult:
     output_errors: dict[str, str] = field(default_factory=dict)
     source_report: SourceReport | None = None
     noise: dict[str, Any] | None = None  # the noise scales the run estimated (calibration.py)
+    existence: dict[str, Any] | None = None  # the end-of-survey existence test (maintenance.py)
     gnss: dict[str, int] = field(default_factory=dict)  # fixes used and rejected (issue 13)
     checkpoints: dict[str, Any] | None = None  # resumed at which record, checkpoints taken
     season: dict[str, Any] | None = None  # a survey that continued a saved map (issue 15)
@@ -228,6 +229,7 @@ def _run(
     result = RunResult(None, None, wall, n_frames, [], dict(issues), error, dict(counts))
     result.source_report = source.report if source is not None else None
     result.noise = world.noise.report()
+    result.existence = world.existence.report()
     result.gnss = world.gnss.summary()
     if checkpoints is not None:
         result.checkpoints = {
@@ -326,6 +328,7 @@ def _summary(result: RunResult) -> dict[str, Any]:
             "records": result.records,
             "issues": result.issues,
             "noise_calibration": result.noise,
+            "existence": result.existence,
             "checkpoints": result.checkpoints,
         },
         "input": report.as_dict() if report is not None else None,
