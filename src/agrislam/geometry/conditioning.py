@@ -69,13 +69,14 @@ def marginal_covariances(
     information = information_matrix(graph, point, int(dims.sum()))
     objects = np.concatenate([start[key] + np.arange(2) for key in keys])
     rest = np.setdiff1d(np.arange(int(dims.sum())), objects)
-    h_ll = information[objects][:, objects].toarray()
+    rows = information[objects]  # the objects' rows of H, sliced once
+    h_ll = rows[:, objects].toarray()
     blocks = h_ll.reshape(len(keys), 2, len(keys), 2)
     own = blocks[np.arange(len(keys)), :, np.arange(len(keys)), :]  # (k, 2, 2)
     tied = np.abs(h_ll).sum() - np.abs(own).sum() > 1e-9 * np.abs(own).sum()
     # a few hundred rows of dense algebra: one BLAS thread (more spin on a busy machine)
     with np.errstate(all="ignore"), _BLAS.limit(limits=1, user_api="blas"):
-        covs = None if tied else _schur_covariances(information, objects, rest, own)
+        covs = None if tied else _schur_covariances(information, rows, rest, own)
     if covs is not None and _measured(covs):
         return list(covs)
     marginals = gtsam.Marginals(graph, point)
@@ -102,14 +103,15 @@ def _measured(covs: np.ndarray) -> bool:
 
 
 def _schur_covariances(
-    information: sp.csr_matrix, objects: np.ndarray, rest: np.ndarray, own: np.ndarray
+    information: sp.csr_matrix, rows: sp.csr_matrix, rest: np.ndarray, own: np.ndarray
 ) -> np.ndarray | None:
-    """(k, 2, 2) the objects' marginal covariances (`marginal_covariances`), or None
-    where an object's own block or the reduced system is singular."""
+    """(k, 2, 2) the objects' marginal covariances (`marginal_covariances`; `rows`: the
+    objects' rows of the information matrix), or None where an object's own block or
+    the reduced system is singular."""
     count, size = len(own), len(rest)
     try:
         own_inv = np.linalg.inv(own)
-        h_lp = information[objects][:, rest].toarray()  # (2k, p)
+        h_lp = rows[:, rest].toarray()  # (2k, p)
         w = (own_inv @ h_lp.reshape(count, 2, size)).reshape(-1, size)  # H_ii^-1 H_ip
         factor = np.linalg.cholesky(information[rest][:, rest].toarray() - h_lp.T @ w)
     except np.linalg.LinAlgError:

@@ -28,6 +28,7 @@ import numpy as np
 
 from agrislam.config import GnssConfig
 from agrislam.geometry import se2
+from agrislam.geometry.calibration import mahalanobis
 from agrislam.geometry.geodesy import MapFrame
 from agrislam.geometry.noise import gaussian
 from agrislam.records import FIX_TYPES, Anchor, GnssFix
@@ -79,10 +80,6 @@ def weighted_covariance(cov_map: np.ndarray, fix: str, cfg: GnssConfig) -> np.nd
     return cov_map + max(0.0, floor2 - smallest) * np.eye(2)
 
 
-def mahalanobis2(residual: np.ndarray, cov: np.ndarray) -> float:
-    return float(residual @ np.linalg.solve(cov, residual))
-
-
 def psd_part(cov: np.ndarray) -> np.ndarray:
     """A symmetric matrix with its negative eigenvalues set to zero."""
     w, v = np.linalg.eigh(cov)
@@ -111,7 +108,7 @@ class Innovation:
         pose uncertainty gained in between (the odometry's, as the marginal grew)."""
         grown = psd_part(self.pose_cov - before.pose_cov)
         diff = self.residual - before.residual
-        return mahalanobis2(diff, self.fix_cov + before.fix_cov + grown) <= chi2
+        return mahalanobis(diff, self.fix_cov + before.fix_cov + grown) <= chi2
 
 
 @dataclass(slots=True)
@@ -212,10 +209,10 @@ class GnssFixes:
         plain = new.fix_cov + new.pose_cov
         if chi2 <= 0.0 or not gated:  # no gate, or no pose covariance to gate with
             return plain
-        if mahalanobis2(new.residual, plain) <= chi2:
+        if mahalanobis(new.residual, plain) <= chi2:
             gate.beyond, gate.last, gate.agreeing, gate.drift = 0, None, 0, np.zeros((2, 2))
             return plain
-        if mahalanobis2(new.residual, plain + gate.drift) <= chi2:
+        if mahalanobis(new.residual, plain + gate.drift) <= chi2:
             gate.beyond, gate.last, gate.agreeing = 0, None, 0
             return plain + gate.drift
         agrees = gate.last is not None and new.agrees(gate.last, chi2)
