@@ -288,6 +288,8 @@ def test_keyframes_beyond_the_kept_ones_fold_away_and_their_anchors_move_on(smal
     g.refine()  # the whole record is kept: the batch solution again
     refined = b.positions(g, ids)
     assert max(np.linalg.norm(refined[k] - exact[k]) for k in ids) < 1e-3
+    with pytest.raises(ValueError, match="keyframes_kept"):
+        SlamConfig(keyframes_kept=-1)
 
 
 def loop_survey(g, bias: float = 0.02):

@@ -395,6 +395,7 @@ class SlamConfig(_Strict):
     )
     keyframes_kept: int = Field(
         0,
+        ge=0,
         description="keyframes each robot keeps in the graph; older ones are folded away "
         "like a window's poses (what hangs on them moves onto the newest), so the graph "
         "stays bounded however long the survey; 0 = every keyframe stays",
