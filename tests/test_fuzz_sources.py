@@ -14,7 +14,7 @@ import tempfile
 from pathlib import Path
 
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from agrislam.config import AgrislamConfig
@@ -111,6 +111,7 @@ def test_random_bytes_named_as_a_bag(data, suffix):
 
 @settings(max_examples=30, deadline=None)
 @given(st.floats(0.0, 1.0), st.integers(0, 255), st.booleans())
+@example(where=0.984375, byte=9, cut=False)  # a damaged definition: Header without stamp
 def test_a_cut_or_damaged_mcap_bag_is_salvaged_or_refused(small_bag, where, byte, cut):
     """A bag cut off anywhere (or with one byte changed): what is readable is read."""
     at = int(where * (len(small_bag) - 1))

@@ -235,10 +235,12 @@ class _BagReader:
                 self.report.messages[conn.topic] += 1
                 try:
                     msg = self._deserialize(reader, conn, raw)
+                    self._dispatch(conn.topic, msg, logtime)
                 except SkipError as skip:
                     self.report.add(skip.kind, conn.topic, logtime * 1e-9, skip.message)
-                    continue
-                self._dispatch(conn.topic, msg, logtime)
+                except AttributeError as err:  # decoded by a damaged definition of its type
+                    message = f"{conn.msgtype} lacks a field of its type: {err}"
+                    self.report.add("undecodable", conn.topic, logtime * 1e-9, message)
             self._place_2d(self.rgbd.finish())
         self._late(self.clocks.finish())
         ordered = self._ordered()
