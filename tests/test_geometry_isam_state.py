@@ -1,6 +1,8 @@
 """The incremental back end's state parts (geometry/isam_state.py) on their own: the
 pending update against a real iSAM2, the slot table's bookkeeping, the retired rows."""
 
+import pickle
+
 import gtsam
 import numpy as np
 import pytest
@@ -132,6 +134,49 @@ def test_retired_rows_stay_dense_and_follow_their_keys():
     poses = Retired(3)
     poses.put(X1, X0, np.array([1.0, 2.0, 0.1]))
     assert poses.row(X1) == 0 and poses.row(X0) is None
+
+
+def test_deferred_covariances_are_computed_once_when_read_or_settled():
+    """A fold's covariances wait (issue 14): `pace` computes the oldest once a step unless
+    a read did; a read computes only what it reads; a pop, an anchor, a rebase and a
+    pickle settle first; a removal leaves unneeded work undone."""
+    table, calls = RetiredObjects(), []
+    keys = [gtsam.symbol("l", n) for n in range(6)]
+
+    def retire(some: list[int], first: int, scale: float) -> None:
+        for key in some:
+            table.put(key, X0, np.array([1.0, 0.0]), cov=np.full((2, 2), np.nan))
+
+        def compute():
+            calls.append(first)
+            return [np.eye(2) * scale] * len(some)
+
+        table.defer(some, compute)
+
+    for n, first in enumerate(range(0, 6, 2)):
+        retire(keys[first : first + 2], first, n + 1.0)
+    assert calls == []
+    table.pace()  # the oldest
+    assert calls == [0]
+    rows = table.rows(keys[4:5])
+    np.testing.assert_array_equal(table.covariances(rows), [np.eye(2) * 3])
+    assert calls == [0, 4]  # only the computation that gives what was read
+    table.pace()  # a read settled one since the last pace: nothing more this step
+    assert calls == [0, 4]
+    np.testing.assert_array_equal(table.anchor(keys[2]).cov, np.eye(2) * 2)
+    assert calls == [0, 4, 2] and not np.isnan(table.cov).any()
+    retire(keys[:2], 7, 4.0)
+    assert table.remove(keys[0]) and table.remove(keys[1])  # pruned: nobody waits for it
+    table.settle()
+    assert calls == [0, 4, 2]
+    retire(keys[:1], 9, 5.0)
+    copy = pickle.loads(pickle.dumps(table))  # a checkpoint: computed before, not after
+    assert calls[-1] == 9 and table.anchor(keys[0]).cov[0, 0] == 5.0
+    np.testing.assert_array_equal(copy.cov, table.cov)
+    retire(keys[1:2], 8, 6.0)
+    table.rebase(X0, X1, np.array([0.0, 0.0, np.pi / 2]))  # turns the settled covariance
+    np.testing.assert_allclose(table.anchor(keys[1]).cov, np.eye(2) * 6.0, atol=1e-12)
+    assert calls[-1] == 8
 
 
 def test_values_at_reads_poses_and_points_by_key():

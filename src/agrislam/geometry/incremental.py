@@ -22,7 +22,9 @@ carries on from that solution; call it at the end of a survey, or when time allo
 
 from __future__ import annotations
 
+import functools
 import math
+from collections.abc import Callable
 
 import gtsam
 import numpy as np
@@ -101,6 +103,7 @@ class IncrementalBackend(BackendBase):
         first and iSAM2 is kept as its live factors (in slot order) and linearisation
         point, in GTSAM's own serialisation (exact to the last bit)."""
         self._solve_pending()
+        self._retired_objects.settle()
         state = self.__dict__.copy()
         state["_isam"] = serialised_isam2(self._isam, [s for s, _ in self._slots.ordered()])
         state["_cov_cache"] = {}
@@ -176,9 +179,11 @@ class IncrementalBackend(BackendBase):
         self._pending.remove(slots)
         anchors = [e.anchor for e in self._slots.drop(slots) if e.anchor is not None]
         anchors += self._pending.drop_anchors_of(key)
-        if (retired := self._retired_objects.pop(key)) is not None:
-            anchors.append(retired)
-        if into is not None:
+        if into is None:
+            self._retired_objects.remove(key)  # nothing to carry: its covariance is not needed
+        else:
+            if (retired := self._retired_objects.pop(key)) is not None:
+                anchors.append(retired)
             self._enter(into)
             for anchor in anchors:
                 self._push_anchor(into, anchor)
@@ -196,8 +201,8 @@ class IncrementalBackend(BackendBase):
             if key_kind(key) == POSE:
                 return pose_array(self._isam.calculateEstimatePose2(key))
             return np.asarray(self._isam.calculateEstimatePoint2(key), dtype=float).ravel()
-        if (anchor := self._retired_objects.anchor(key)) is not None:
-            return compose(self._estimate(anchor.keyframe), np.r_[anchor.z, 0.0])[:2]
+        if (place := self._retired_objects.place(key)) is not None:
+            return compose(self._estimate(place[0]), np.r_[place[1], 0.0])[:2]
         if (row := self._retired_poses.row(key)) is not None:
             poses = self._retired_poses
             return compose(self._estimate(int(poses.keyframes[row])), poses.local[row])
@@ -210,7 +215,9 @@ class IncrementalBackend(BackendBase):
         """One iSAM2 step with this step's factors; every `window` steps, a keyframe."""
         self._solve_pending()
         self._step += 1
-        if self.window and self._step - self._window_start >= self.window:
+        if not self.window or self._step - self._window_start < self.window:
+            self._retired_objects.pace()  # a fold's deferred covariances, a part a step
+        else:
             self._fold()
             if self.slam.refine_turn_deg and self._turned() > math.radians(
                 self.slam.refine_turn_deg
@@ -329,27 +336,28 @@ class IncrementalBackend(BackendBase):
         factors = self._isam.getFactorsUnsafe()
         for slot in self._slots.inside(set(blanket)):
             around.push_back(factors.at(slot))
-        parts = components(around)
+        parts = functools.cache(lambda: components(around))
         for keyframe, keys in anchored.items():
-            covs = self._given(keyframe, keys, parts[keyframe], point, blanket)
             kf_pose = value_array(point, keyframe)
-            rot = rotation(kf_pose[2])
-            for key, cov in zip(keys, covs, strict=True):
+            for key in keys:
                 z = to_robot_frame(kf_pose, value_array(point, key))
-                self._retired_objects.put(key, keyframe, z, cov=rot.T @ cov @ rot)
+                self._retired_objects.put(key, keyframe, z, cov=np.full((2, 2), np.nan))
+            # the covariances (most of a fold's work) are computed a step later (issue 14)
+            given = functools.partial(self._given, keyframe, keys, parts, point, blanket)
+            self._retired_objects.defer(keys, given)
 
     def _given(
         self,
         keyframe: int,
         keys: list[int],
-        part: tuple[gtsam.NonlinearFactorGraph, set[int]],
+        parts: Callable[[], dict[int, tuple[gtsam.NonlinearFactorGraph, set[int]]]],
         point: gtsam.Values,
         blanket: list[int],
     ) -> list[np.ndarray]:
-        """Map-frame covariances of objects `keys` given `keyframe`, from the `part` of
-        the graph around connected to it (its factors and nodes); should even that fail,
-        the objects keep a covariance of FREE_SIGMA and the run goes on."""
-        local, nodes = part
+        """Covariances of objects `keys` given `keyframe` in its frame, from the part of
+        the graph around connected to it (`parts()[keyframe]`, its factors and nodes);
+        should even that fail, they are FREE_SIGMA wide and the run goes on."""
+        local, nodes = parts()[keyframe]
         free = [k for k in blanket if k in nodes]
 
         def covariances(graph: gtsam.NonlinearFactorGraph) -> list[np.ndarray]:
@@ -357,10 +365,12 @@ class IncrementalBackend(BackendBase):
 
         graph = conditioned(local, point, keyframe, free)
         try:
-            return isolating(covariances, graph, point, self.issues, "a keyframe fold")
+            covs = isolating(covariances, graph, point, self.issues, "a keyframe fold")
         except RuntimeError:
             self.issues["object given a weak covariance at a keyframe fold"] += len(keys)
             return [np.eye(2) * FREE_SIGMA**2 for _ in keys]
+        rot = rotation(value_array(point, keyframe)[2])
+        return [rot.T @ cov @ rot for cov in covs]
 
     def _marginal(
         self, graph: gtsam.NonlinearFactorGraph, point: gtsam.Values, window: set[int]
@@ -556,7 +566,8 @@ class IncrementalBackend(BackendBase):
             jac = rot @ point_jacobian(z)
             cov_k = np.stack(per_distinct(keyframes, self._marginal_covariance))
             rot_t = np.swapaxes(rot, 1, 2)
-            out[retired] = jac @ cov_k @ np.swapaxes(jac, 1, 2) + rot @ objects.cov[rows] @ rot_t
+            given = objects.covariances(rows)
+            out[retired] = jac @ cov_k @ np.swapaxes(jac, 1, 2) + rot @ given @ rot_t
         return out
 
     def live_size(self) -> int:

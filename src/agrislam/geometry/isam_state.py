@@ -314,23 +314,86 @@ class Retired:
         self._columns["local"][: self._n] = local
 
 
+@dataclass(slots=True, eq=False)  # hashed by identity
+class Deferred:
+    """The covariances of retired objects `keys`, from `compute()` when first needed."""
+
+    keys: list[int]
+    compute: Callable[[], list[np.ndarray]]
+
+
 class RetiredObjects(Retired):
     """Retired objects: `local` their position z in the keyframe's frame, `cov[r]` the 2x2
-    covariance of z given the keyframe."""
+    covariance of z given the keyframe.
+
+    A keyframe fold retires objects at once but may leave their covariances (most of a
+    fold's work, issue 14) to be `defer`red: `settle` computes the oldest a step later,
+    and every read of a covariance settles what it reads first. The result does not
+    depend on when it is computed (a deferred computation holds its own graph and values),
+    so the map is the same whether it runs at once, later, or before a checkpoint."""
 
     def __init__(self) -> None:
         super().__init__(2)
         self._columns["cov"] = np.zeros((0, 2, 2))
+        self._deferred: list[Deferred] = []
+        self._waiting: dict[int, Deferred] = {}  # key -> what gives its covariance
+        self._settled = 0  # computations settled since the last `pace`
+
+    def __getstate__(self) -> dict:
+        """Deferred computations hold GTSAM graphs: they are settled before a pickle."""
+        self.settle()
+        return self.__dict__.copy()
 
     @property
     def cov(self) -> np.ndarray:
+        self.settle()
         return self._column("cov")
+
+    def covariances(self, rows: np.ndarray) -> np.ndarray:
+        """(k, 2, 2) the covariances of `rows`, what is deferred among them settled."""
+        keys = self.keys[rows].tolist()
+        self._settle_jobs({self._waiting[k] for k in keys if k in self._waiting})
+        return self._columns["cov"][rows]
+
+    def defer(self, keys: list[int], compute: Callable[[], list[np.ndarray]]) -> None:
+        """Retired objects `keys` get their covariances from `compute()`, later."""
+        job = Deferred(keys, compute)
+        self._deferred.append(job)
+        self._waiting.update(dict.fromkeys(keys, job))
+
+    def settle(self, count: int | None = None) -> None:
+        """Compute the oldest `count` deferred covariances (all of them by default)."""
+        self._settle_jobs(set(self._deferred[:count]))
+
+    def pace(self) -> None:
+        """Once a step: the oldest deferred computation, unless a read since the last
+        call settled one already (one fold's work spread over the steps after it)."""
+        if not self._settled:
+            self.settle(1)
+        self._settled = 0
+
+    def _settle_jobs(self, jobs: set[Deferred]) -> None:
+        for job in [j for j in self._deferred if j in jobs]:  # in the order deferred
+            self._deferred.remove(job)
+            self._settled += 1
+            for key, cov in zip(job.keys, job.compute(), strict=True):
+                if self._waiting.pop(key, None) is job and (row := self._row.get(key)) is not None:
+                    self._columns["cov"][row] = cov
+
+    def place(self, key: int) -> tuple[int, np.ndarray] | None:
+        """The retired object's keyframe and position z on it, or None if not retired."""
+        row = self._row.get(key)
+        if row is None:
+            return None
+        return int(self._columns["keyframes"][row]), self._columns["local"][row]
 
     def anchor(self, key: int) -> Anchored | None:
         """A copy of the retired object's anchor, or None if it is not retired."""
         row = self._row.get(key)
         if row is None:
             return None
+        if key in self._waiting:
+            self._settle_jobs({self._waiting[key]})
         c = self._columns
         return Anchored(int(c["keyframes"][row]), c["local"][row].copy(), c["cov"][row].copy())
 
@@ -338,6 +401,17 @@ class RetiredObjects(Retired):
         anchor = self.anchor(key)
         self.remove(key)
         return anchor
+
+    def remove(self, key: int) -> bool:
+        """As Retired.remove; a deferred computation nobody waits for any more is dropped."""
+        job = self._waiting.pop(key, None)
+        if job is not None and not any(k in self._waiting for k in job.keys):
+            self._deferred.remove(job)
+        return super().remove(key)
+
+    def rebase(self, keyframe: int, onto: int, relative: np.ndarray) -> None:
+        self.settle()  # a covariance turns along: it must be there
+        super().rebase(keyframe, onto, relative)
 
 
 def values_at(values: gtsam.Values, keys: np.ndarray, dim: int) -> np.ndarray:
