@@ -338,6 +338,21 @@ def test_a_large_loop_closure_refines_the_folded_history():
     assert gap["refining"] < gap["linear"]
 
 
+def test_a_loop_closure_in_a_large_graph_does_not_stall_the_step_with_a_batch(monkeypatch):
+    """Past `turn_refine_max_factors` the refine a turn starts mid-survey relinearises the
+    keyframe graph only (bounded work); an explicit refine() still solves the batch."""
+    import agrislam.geometry.incremental as incremental
+
+    batches = []
+    solve = incremental.solve
+    monkeypatch.setattr(incremental, "solve", lambda *a: batches.append(1) or solve(*a))
+    g = make_backend(SlamConfig(window=5, turn_refine_max_factors=10), RowsConfig())
+    loop_survey(g)
+    assert g.refines >= 1 and not batches
+    g.refine()
+    assert len(batches) == 1
+
+
 def test_dogleg_batch_reaches_the_lm_solution():
     lm = two_copies("batch", merged=False)
     dogleg = make_backend(SlamConfig(backend="batch", batch_optimizer="dogleg"), RowsConfig())

@@ -420,6 +420,14 @@ class SlamConfig(_Strict):
         "only up to this many factors (a batch costs memory in proportion); beyond, it "
         "relinearises the keyframe graph the history is folded onto (bounded memory)",
     )
+    turn_refine_max_factors: int = Field(
+        50_000,
+        ge=0,
+        description="the same bound for a refine that refine_turn_deg starts during the "
+        "survey: that batch stalls the step it runs in (0.1-0.3 ms a factor), so a large "
+        "graph relinearises its keyframe graph instead and the full batch waits for the "
+        "end of the survey",
+    )
 
 
 class RowsConfig(_Strict):

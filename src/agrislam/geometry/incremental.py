@@ -222,7 +222,7 @@ class IncrementalBackend(BackendBase):
             if self.slam.refine_turn_deg and self._turned() > math.radians(
                 self.slam.refine_turn_deg
             ):
-                self.refine()
+                self.refine(self.slam.turn_refine_max_factors)
 
     def _turned(self) -> float:
         """Largest heading change of a keyframe since history was folded onto it: the
@@ -388,14 +388,16 @@ class IncrementalBackend(BackendBase):
         remaining = isolating(eliminated, graph, point, self.issues, "a keyframe fold")
         return gtsam.LinearContainerFactor.ConvertLinearGraph(remaining, kept)
 
-    def refine(self) -> None:
+    def refine(self, max_factors: int | None = None) -> None:
         """Solve the whole recorded graph (batch, warm-started from the current estimates)
         and carry on from that solution: with keyframes, the whole history is folded onto
-        them again, exactly at the solution."""
+        them again, exactly at the solution; with more than `max_factors` factors
+        (`slam.refine_max_factors` by default), only the keyframe graph is relinearised."""
         self._solve_pending()
         if self.window:
             self._fold()  # the current window retires too: only keyframes and rows live
-            if len(self.graph.factors) > self.slam.refine_max_factors:
+            limit = self.slam.refine_max_factors if max_factors is None else max_factors
+            if len(self.graph.factors) > limit:
                 self._refine_folded()
                 return
         graph, initial = gtsam.NonlinearFactorGraph(), gtsam.Values()
