@@ -120,8 +120,10 @@ def main() -> int:
             skipped.update(got["skipped"])
             if got["outcome"] in ("uncaught", "no outputs"):
                 bugs.append(got)
-            if k % 1000 == 0:
-                print(f"  {k} runs, {time.perf_counter() - start:.0f} s", flush=True)
+                print(f"  {got['outcome']}: mutate(lines, *{got['change']})", flush=True)
+            if k % 250 == 0:  # a run cut short still says how far it got, and how
+                tally = ", ".join(f"{o} {n}" for o, n in sorted(outcomes.items()))
+                print(f"  {k} runs, {time.perf_counter() - start:.0f} s: {tally}", flush=True)
     wall = time.perf_counter() - start
     print(f"{args.runs} mutated 30-plant logs ({len(lines)} lines each) through the lenient")
     print(
