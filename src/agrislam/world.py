@@ -23,7 +23,6 @@ from agrislam.association import (
     informative_measurements,
     innovation_covariance,
     max_association_distance,
-    tentative_inflation,
 )
 from agrislam.config import AgrislamConfig, AssociationConfig, FieldSchema
 from agrislam.geometry import se2
@@ -62,6 +61,7 @@ STAGES = (
     "associate",  # gate, association matrix, GNN; new objects
     "noise",  # pairs of sightings of re-observed objects scale the noise (calibration.py)
     "beliefs",  # Bayes / Kalman updates, each belief brought to t first
+    "confirm",  # young objects in view: counted, confirmed or dropped (maintenance.Existence)
     "optimise",  # measurement factors and the back end's incremental solve
     "index",  # the spatial index follows the objects the solve moved
     "depth_bias",  # the depth bias learned from this frame's residuals
@@ -211,14 +211,13 @@ class WorldModel:
             "gate_sigma_max": configured.landmark_sigma_max,
             # nearer than three sigmas of its sharpest axis, a detection cannot tell two apart
             "d_inter": 3.0 * sharpest,
-            # landmarks seen now and then from far (no camera's footprint): the clutter
-            # guards of a crop survey cost real ones (Victoria Park: 114 -> 73 trees kept)
-            "weak_tentative": False,
         }
         update = {k: v for k, v in generic.items() if k not in chosen}
         self.association = self.association.model_copy(update=update)
         if self.rows is not None and "enabled" not in self.config.rows.model_fields_set:
             self.rows = None
+        # landmarks seen now and then from far (no camera's footprint): confirming young
+        # objects as a crop camera's cost real ones (Victoria Park: 114 -> 73 trees kept)
         if "existence" not in self.config.maintenance.model_fields_set:
             self.existence = Existence(
                 self.config.maintenance.model_copy(update={"existence": False})
@@ -262,19 +261,23 @@ class WorldModel:
             self._sighted(robot, placed, object_ids, new_ids)
         with timer("beliefs"):
             self.beliefs.update(object_ids, [d.attributes for d in detections], t)
+        with timer("confirm"):
+            self.existence.observe(placed.robot_xy)
+            dropped = self._confirm(robot, seen)
         with timer("optimise"):
             sigma_scale = float(self.noise.scale.sigma[0])
-            weak = self.objects.young[object_ids] & self.association.weak_tentative
-            weak = tentative_inflation(placed.robot_cov, weak, self.association.d_inter)
-            for det, obj, xy, cov, k in zip(
+            # a tentative object's detections say where it is, not where the robot is
+            weak = self.objects.tentative[object_ids] & self.existence.enabled
+            floor = np.where(weak, self.association.d_inter, 0.0)
+            for det, obj, xy, cov, f in zip(
                 detections,
                 object_ids.tolist(),
                 placed.robot_xy,
                 placed.robot_cov,
-                weak,
+                floor.tolist(),
                 strict=True,
             ):
-                measurement = self.sensor.measurement(det, xy, cov * k * k, sigma_scale * k)
+                measurement = self.sensor.measurement(det, xy, cov, sigma_scale, f)
                 self.backend.add_observation(robot, obj, measurement)
             self.backend.update()
         with timer("index"):
@@ -285,8 +288,10 @@ class WorldModel:
             if self.rows is not None:
                 self.rows.after_step(self.backend, seen, len(detections), self.objects.n_frames)
         with timer("maintain"):
-            self.existence.observe(placed.robot_xy)
             result = self._maintain(seen, t)
+            result.pruned += self._prune(
+                self.objects.active(np.asarray(dropped, dtype=int)).tolist()
+            )
         report = StepReport(t, robot, self.resolve(object_ids), new_ids, result, {})
         report.seconds = timer.close_step()
         return report
@@ -424,6 +429,17 @@ class WorldModel:
         eligible = object_ids[:, None] == around[k][None, :]
         spacing = nearest_other(dist)[:, k]
         self.noise.observe(*frame, (then.xy[k], then.cov[k], then.drift[k]), eligible, spacing)
+
+    def _confirm(self, robot: str, seen: np.ndarray) -> list[int]:
+        """The objects in the camera's view count the frame; tentative ones are confirmed,
+        or returned to be dropped, as their sightings say (maintenance.Existence)."""
+        if not self.existence.enabled:
+            return []
+        pose = self.backend.current_pose(robot)
+        area = self.existence.area()
+        near = self.index.query(pose[None, :2], area.range[1]) if area else seen[:0]
+        near = self.objects.active(near)
+        return self.existence.look(pose, near, self.index.position(near), seen, self.objects)
 
     def _create_objects(
         self, object_ids: np.ndarray, placed: PlacedDetections, t: float
