@@ -96,9 +96,9 @@ class ObjectTable:
         return self._views[: self._n]
 
     # ---------------------------------------------------------------- lifecycle
-    def add(self, count: int, t: float) -> np.ndarray:
-        """`count` new active objects at time t, watched by the pruner, tentative; their
-        ids."""
+    def add(self, count: int, t: float, tentative: bool = False) -> np.ndarray:
+        """`count` new active objects at time t, watched by the pruner, tentative if asked;
+        their ids."""
         ids = self.beliefs.add(count, t)
         self._reserve(len(self.beliefs))
         self._status[ids] = STATUS_ACTIVE
@@ -106,7 +106,7 @@ class ObjectTable:
         self._n_frames[ids] = 0
         self._seen_by[ids] = NO_ROBOT
         self._young[ids] = True
-        self._tentative[ids] = True
+        self._tentative[ids] = tentative
         self._views[ids] = 0
         self._n = len(self.beliefs)
         return ids

@@ -267,8 +267,7 @@ class WorldModel:
         with timer("optimise"):
             sigma_scale = float(self.noise.scale.sigma[0])
             # a tentative object's detections say where it is, not where the robot is
-            weak = self.objects.tentative[object_ids] & self.existence.enabled
-            floor = np.where(weak, self.association.d_inter, 0.0)
+            floor = np.where(self.objects.tentative[object_ids], self.association.d_inter, 0.0)
             for det, obj, xy, cov, f in zip(
                 detections,
                 object_ids.tolist(),
@@ -286,7 +285,9 @@ class WorldModel:
             self._calibrate_depth(robot, placed, object_ids)
         with timer("rows"):
             if self.rows is not None:
-                self.rows.after_step(self.backend, seen, len(detections), self.objects.n_frames)
+                # a tentative object joins no row: clutter would bend the rows
+                confirmed = np.where(self.objects.tentative, 0, self.objects.n_frames)
+                self.rows.after_step(self.backend, seen, len(detections), confirmed)
         with timer("maintain"):
             result = self._maintain(seen, t)
             result.pruned += self._prune(
@@ -446,7 +447,7 @@ class WorldModel:
     ) -> np.ndarray:
         """Unassigned detections become new objects (in place in `object_ids`)."""
         unassigned = np.flatnonzero(object_ids < 0)
-        new_ids = self.objects.add(len(unassigned), t)
+        new_ids = self.objects.add(len(unassigned), t, tentative=self.existence.enabled)
         for i, obj in zip(unassigned.tolist(), new_ids.tolist(), strict=True):
             self.backend.add_object(obj, placed.xy[i])
         object_ids[unassigned] = new_ids
