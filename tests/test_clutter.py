@@ -6,6 +6,7 @@ cluttered one must stay clean, a clean one must confirm its plants early."""
 import numpy as np
 import pytest
 
+from agrislam.association import SpatialIndex
 from agrislam.config import AgrislamConfig, MaintenanceConfig, SensorDefaults
 from agrislam.geometry.noise import SensorModel
 from agrislam.geometry.view_area import ViewArea, log_odds_absent
@@ -98,18 +99,19 @@ def test_young_objects_are_confirmed_or_dropped_by_their_views():
     existence = Existence(MaintenanceConfig())
     existence.observe(np.column_stack([np.linspace(0.5, 2.5, 40), np.linspace(-1, 1, 40)]))
     objects = _table(2)
-    pose, xy = np.zeros(3), np.array([[1.5, 0.0], [2.0, 0.1]])
+    pose, index = np.zeros(3), SpatialIndex()
+    index.move(np.arange(2), np.array([[1.5, 0.0], [2.0, 0.1]]))
     _seen(objects, [0, 1])
-    assert existence.look(pose, np.arange(2), xy, np.arange(2), objects) == []
+    assert existence.look(pose, index, np.arange(2), objects).tolist() == []
     assert objects.tentative.all()  # one sighting each: not yet
     _seen(objects, [0])
-    dropped = existence.look(pose, np.arange(2), xy, np.array([0]), objects)
+    dropped = existence.look(pose, index, np.array([0]), objects).tolist()
     assert objects.tentative.all()  # two: not yet
     _seen(objects, [0])
-    dropped += existence.look(pose, np.arange(2), xy, np.array([0]), objects)
+    dropped += existence.look(pose, index, np.array([0]), objects).tolist()
     assert not objects.tentative[0] and objects.tentative[1]
     for _ in range(5):  # object 1 in view, never seen again
-        dropped += existence.look(pose, np.arange(2), xy, np.empty(0, dtype=int), objects)
+        dropped += existence.look(pose, index, np.empty(0, dtype=int), objects).tolist()
     assert dropped == [1] and objects.views.tolist() == [8, 8]
     assert existence.report()["confirmed"] == 1 and existence.report()["dropped"] == 1
 

@@ -149,27 +149,26 @@ class Existence:
     def look(
         self,
         pose: np.ndarray,
-        near: np.ndarray,
-        near_xy: np.ndarray,
+        index: SpatialIndex,
         seen: np.ndarray,
         objects: ObjectTable,
-    ) -> list[int]:
-        """One frame seen from `pose` (3,): the objects `near` it (at `near_xy`) that were
-        in view, or `seen` in it, count a view; the tentative ones among them that their
-        sightings now say are there are confirmed. Returns those they say are not there,
-        to be pruned."""
+        first: int = 0,
+    ) -> np.ndarray:
+        """One frame seen from `pose` (3,): the objects from id `first` on (this survey's)
+        that were in view (where `index` last put them), or `seen` in it, count a view; the
+        tentative ones among them that their sightings now say are there are confirmed.
+        Returns those they say are not there, to be pruned."""
         area = self.area()
         if not self.enabled or area is None:
-            return []
+            return np.empty(0, dtype=np.int64)
+        near = objects.active(index.query(pose[None, :2], area.range[1]))
+        near, seen = near[near >= first], seen[seen >= first]
         self._frames += 1
-        looked = np.union1d(near[area.in_view(pose, near_xy)], seen)
+        looked = np.union1d(near[area.in_view(pose, index.position(near))], seen)
         objects.views[looked] += 1
         if not self.learned or self._frames % RELEARN_FRAMES == 0:
             self.learn(objects)
-
         young = looked[objects.tentative[looked]]
-        if len(young) == 0:
-            return []
         hits, views = self._counts(young, objects)
         log_odds = self.log_odds(hits, views)
         sure = np.log(self.config.confirm_p / (1.0 - self.config.confirm_p))
@@ -178,7 +177,7 @@ class Existence:
         objects.tentative[np.r_[confirmed, dropped]] = False  # judged
         self.confirmed += len(confirmed)
         self.dropped += len(dropped)
-        return dropped.tolist()
+        return dropped
 
     def absent(
         self,

@@ -216,8 +216,7 @@ class WorldModel:
         self.association = self.association.model_copy(update=update)
         if self.rows is not None and "enabled" not in self.config.rows.model_fields_set:
             self.rows = None
-        # landmarks seen now and then from far (no camera's footprint): confirming young
-        # objects as a crop camera's cost real ones (Victoria Park: 114 -> 73 trees kept)
+        # landmarks seen now and then from far: no confirmation (it cost VP 41 of 114 trees)
         if "existence" not in self.config.maintenance.model_fields_set:
             self.existence = Existence(
                 self.config.maintenance.model_copy(update={"existence": False})
@@ -263,20 +262,15 @@ class WorldModel:
             self.beliefs.update(object_ids, [d.attributes for d in detections], t)
         with timer("confirm"):
             self.existence.observe(placed.robot_xy)
-            dropped = self._confirm(robot, seen)
+            pose = self.backend.current_pose(robot)
+            dropped = self.existence.look(pose, self.index, seen, self.objects, self._first_own)
         with timer("optimise"):
             sigma_scale = float(self.noise.scale.sigma[0])
             # a tentative object's detections say where it is, not where the robot is
             floor = np.where(self.objects.tentative[object_ids], self.association.d_inter, 0.0)
-            for det, obj, xy, cov, f in zip(
-                detections,
-                object_ids.tolist(),
-                placed.robot_xy,
-                placed.robot_cov,
-                floor.tolist(),
-                strict=True,
-            ):
-                measurement = self.sensor.measurement(det, xy, cov, sigma_scale, f)
+            factors = (detections, object_ids.tolist(), placed.robot_xy, placed.robot_cov, floor)
+            for det, obj, xy, cov, f in zip(*factors, strict=True):
+                measurement = self.sensor.measurement(det, xy, cov, sigma_scale, float(f))
                 self.backend.add_observation(robot, obj, measurement)
             self.backend.update()
         with timer("index"):
@@ -290,9 +284,7 @@ class WorldModel:
                 self.rows.after_step(self.backend, seen, len(detections), confirmed)
         with timer("maintain"):
             result = self._maintain(seen, t)
-            result.pruned += self._prune(
-                self.objects.active(np.asarray(dropped, dtype=int)).tolist()
-            )
+            result.pruned += self._prune(self.objects.active(dropped).tolist())
         report = StepReport(t, robot, self.resolve(object_ids), new_ids, result, {})
         report.seconds = timer.close_step()
         return report
@@ -431,16 +423,10 @@ class WorldModel:
         spacing = nearest_other(dist)[:, k]
         self.noise.observe(*frame, (then.xy[k], then.cov[k], then.drift[k]), eligible, spacing)
 
-    def _confirm(self, robot: str, seen: np.ndarray) -> list[int]:
-        """The objects in the camera's view count the frame; tentative ones are confirmed,
-        or returned to be dropped, as their sightings say (maintenance.Existence)."""
-        if not self.existence.enabled:
-            return []
-        pose = self.backend.current_pose(robot)
-        area = self.existence.area()
-        near = self.index.query(pose[None, :2], area.range[1]) if area else seen[:0]
-        near = self.objects.active(near)
-        return self.existence.look(pose, near, self.index.position(near), seen, self.objects)
+    @property
+    def _first_own(self) -> int:
+        """The first object id this survey started (a saved map's plants come first)."""
+        return int(self.prior.ids.max(initial=-1)) + 1 if self.prior is not None else 0
 
     def _create_objects(
         self, object_ids: np.ndarray, placed: PlacedDetections, t: float
@@ -457,16 +443,15 @@ class WorldModel:
     def finish(self) -> MaintenanceResult:
         """End of the survey: solve the whole graph once more (the real-time estimate
         folds history away, sec. 2.6), and prune the young uncertain objects still
-        waiting for their grace period: they will not be seen again; then the objects
-        the survey's detections say are not there (maintenance.Existence)."""
+        waiting for their grace period: they will not be seen again; then those still
+        tentative that the survey's detections say are not there (maintenance.Existence)."""
         self.backend.refine()
         for name, chain in self.robots.items():
             if not chain.started:
                 self.issues[f"robot {name!r} is in the meta but has no records"] += 1
         t = float(self.objects.last_update.max(initial=0.0))
         result = self._maintain(np.empty(0, dtype=int), t, grace=0.0)
-        ids = self.active_ids()  # of this survey: a saved map's plants are the season's
-        ids = ids[ids > (self.prior.ids.max(initial=-1) if self.prior is not None else -1)]
+        ids = self.objects.active(np.arange(self._first_own, len(self.objects)))  # not saved
         poses = [self.backend.trajectory(r)[1] for r, c in self.robots.items() if c.started]
         absent = self.existence.absent(ids, self.backend.object_positions, self.objects, poses)
         result.pruned += self._prune(absent)
