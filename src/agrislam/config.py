@@ -25,6 +25,10 @@ from agrislam.season_config import SeasonConfig
 SECONDS_PER_DAY = 86_400.0
 # association keys renamed since 0.1: old -> new (read with a FutureWarning)
 RENAMED_ASSOCIATION_KEYS = {"detection_covariance": "innovation_gate"}
+# keys that are gone, with what took their place
+REMOVED_ASSOCIATION_KEYS = {
+    "weak_tentative": "young objects are tentative while maintenance.existence confirms them"
+}
 
 
 # --------------------------------------------------------------------------- schema
@@ -298,7 +302,8 @@ class AssociationConfig(_Strict):
     @model_validator(mode="before")
     @classmethod
     def _renamed_keys(cls, data: Any) -> Any:
-        """Configs written before a key was renamed keep working, with a warning."""
+        """Configs written before a key was renamed, or removed, keep working, with a
+        warning."""
         if not isinstance(data, dict):
             return data
         for old, new in RENAMED_ASSOCIATION_KEYS.items():
@@ -310,6 +315,10 @@ class AssociationConfig(_Strict):
                 )
                 data = {**data, new: data[old]}
                 del data[old]
+        for old, instead in REMOVED_ASSOCIATION_KEYS.items():
+            if old in data:
+                warnings.warn(f"association.{old} is ignored: {instead}", FutureWarning, 2)
+                data = {k: v for k, v in data.items() if k != old}
         return data
 
     w_sem: float = Field(0.3, ge=0.0, le=1.0, description="semantic weight w_sem")
@@ -454,10 +463,11 @@ class MaintenanceConfig(_Strict):
         True,
         description="a new object is tentative until the frames that had it in view confirm "
         "it (detected in enough of them, with the detection and stray rates learned from the "
-        "survey: maintenance.Existence); until then its detections' factors have their "
-        "sharpest sigma raised to association.d_inter, so clutter cannot pull the poses, and "
-        "it is dropped once they say it is not there, or at the end of the survey if it is "
-        "more likely not there than there: not in the paper",
+        "survey: maintenance.Existence); until then its detections' factors get "
+        "association.d_inter of isotropic noise added, so clutter cannot pull the poses, and "
+        "it joins no row; it is dropped once they say it is not there, or at the end of the "
+        "survey if it is more likely not there than there: not in the paper (it replaces "
+        "association.weak_tentative)",
     )
     confirm_p: float = Field(
         0.999,
