@@ -158,8 +158,8 @@ class Existence:
         that were in view (where `index` last put them), or `seen` in it, count a view; the
         tentative ones among them that their sightings now say are there are confirmed.
         Returns those they say are not there, to be pruned."""
-        area = self.area()
-        if not self.enabled or area is None:
+        area = self.area() if self.enabled else None
+        if area is None:
             return np.empty(0, dtype=np.int64)
         near = objects.active(index.query(pose[None, :2], area.range[1]))
         near, seen = near[near >= first], seen[seen >= first]
