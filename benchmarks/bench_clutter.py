@@ -36,7 +36,6 @@ VARIANTS: dict[str, dict[str, Any]] = {
             "innovation_gate": False,
             "gate_chi2": 1.0,
             "landmark_defaults": False,
-            "weak_tentative": False,
         },
         "maintenance": {"existence": False},
     },

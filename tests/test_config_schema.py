@@ -243,3 +243,9 @@ def test_a_renamed_association_key_is_still_read_with_a_warning():
     with pytest.warns(FutureWarning, match="detection_covariance is now .*innovation_gate"):
         cfg = AgrislamConfig.model_validate({"association": {"detection_covariance": True}})
     assert cfg.association.innovation_gate is True
+
+
+def test_a_removed_association_key_is_ignored_with_a_warning():
+    with pytest.warns(FutureWarning, match="weak_tentative is ignored: .*maintenance.existence"):
+        cfg = AgrislamConfig.model_validate({"association": {"weak_tentative": False}})
+    assert cfg.maintenance.existence is True

@@ -319,6 +319,47 @@ def test_history_command_prints_surveys_and_a_plant(tmp_path):
     assert result.exit_code == 0 and "size b 0.70" in result.output
 
 
+def test_an_emerged_weed_becomes_one_new_plant(tmp_path):
+    """Weeds that emerged between two surveys are confirmed by their sightings as plants
+    of the map, each one object, and reported new; nothing else is new."""
+    from collections import Counter
+
+    from agrislam.pipeline import run_survey
+    from agrislam.records import Detections
+    from agrislam.season_outputs import load_season
+    from agrislam.sim.config import SimConfig
+    from agrislam.sim.season import SeasonSimulator, season_config
+    from agrislam.world import WorldModel
+
+    cfg = SimConfig.model_validate({"seed": 2, "field": {"n_plants": 120}})
+    sim = SeasonSimulator(season_config(cfg, [0, 7]), removed=0.0, weeds=4)
+    run_survey(list(sim.day_records(0)), WorldModel(AgrislamConfig()), tmp_path / "d0")
+    season = load_season(tmp_path / "d0" / "map.sqlite", AgrislamConfig())
+    world, sightings = WorldModel(AgrislamConfig()), Counter()
+    step = world.step
+
+    def spy(frame: Detections):
+        report = step(frame)
+        ids = report.object_ids.tolist()
+        sightings.update(zip((d.truth_id for d in frame.objects), ids, strict=True))
+        return report
+
+    world.step = spy
+    run_survey(list(sim.day_records(1)), world, tmp_path / "d1", season=season)
+    new = season.changes.new.tolist()
+    owner = [
+        Counter({t: n for (t, o), n in sightings.items() if o == obj}).most_common(1)[0][0]
+        for obj in new
+    ]
+    seen = Counter()
+    for (t, _), n in sightings.items():
+        seen[t] += n
+    weeds = {t for t, n in seen.items() if t and t.startswith("w") and n >= 3}
+    assert sorted(owner) == sorted(weeds)  # each weed one new object, nothing else new
+    assert not world.objects.tentative[new].any()
+    assert world.existence.report()["confirmed"] >= len(weeds)
+
+
 # ------------------------------------------------------------------ the gate, every robot
 
 

@@ -274,7 +274,7 @@ def test_a_survey_without_a_field_prior_is_mapped_as_point_landmarks():
     assert cfg.innovation_gate and cfg.gate_chi2 == pytest.approx(9.21)
     assert cfg.d_inter == pytest.approx(3.0 * np.sqrt(0.002))
     assert world.rows is None
-    assert not cfg.weak_tentative and not world.existence.config.existence  # crop guards off
+    assert not world.existence.enabled  # no confirmation of young objects
     assert world.config.association.d_inter == 0.2  # the config itself is not written
 
 
@@ -284,7 +284,7 @@ def test_a_field_prior_keeps_the_papers_defaults_and_the_config_wins():
     world.process(Detections(0.0, "r1", seen_from(np.zeros(3), PLANTS)))
     assert not world.association.innovation_gate and world.association.d_inter == 0.15
     assert world.rows is not None
-    assert world.association.weak_tentative and world.existence.config.existence
+    assert world.existence.enabled
     chosen = WorldModel(
         AgrislamConfig.model_validate(
             {"association": {"gate_chi2": 4.0, "d_inter": 0.1}, "rows": {"enabled": True}}

@@ -169,20 +169,6 @@ def assign(matrix: np.ndarray) -> np.ndarray:
     return chosen
 
 
-def tentative_inflation(cov: np.ndarray, tentative: np.ndarray, d_inter: float) -> np.ndarray:
-    """(m,) factor on the sigma of each detection's factor: 1, or for a detection of a
-    tentative object one that makes its sharpest sigma d_inter (not in the paper): the
-    second sighting of clutter is any point within the gate, so until an object is
-    confirmed its detections may say where it is but must not pull the poses. Its K_n
-    grows with it, so the object also takes detections farther off: a plant's own far,
-    noisy sightings confirm it sooner (gating them on the uninflated K_n left real plants
-    tentative longer and the map drifted more under clutter; measured, issue 12)."""
-    if len(cov) == 0:
-        return np.ones(0)
-    sharpest = np.sqrt(np.maximum(np.linalg.eigvalsh(cov)[:, 0], 1e-12))
-    return np.where(tentative, np.maximum(1.0, d_inter / sharpest), 1.0)
-
-
 def max_association_distance(
     d_inter: float, sigma_max: float, w_sem: float, n_measured: int
 ) -> float:
@@ -259,6 +245,10 @@ class SpatialIndex:
         self._xy[ids[ids < len(self._xy)]] = np.nan
         if len(self._tree_ids):
             self._tree_ids = np.where(np.isin(self._tree_ids, ids), -1, self._tree_ids)
+
+    def position(self, ids: np.ndarray) -> np.ndarray:
+        """(k, 2) the last known positions of indexed objects."""
+        return self._xy[np.asarray(ids, dtype=int)].reshape(-1, 2)
 
     def query(self, centres: np.ndarray, radius: float) -> np.ndarray:
         """Ids of all objects within `radius` of any of `centres` (sorted, unique); may

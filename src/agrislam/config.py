@@ -25,6 +25,10 @@ from agrislam.season_config import SeasonConfig
 SECONDS_PER_DAY = 86_400.0
 # association keys renamed since 0.1: old -> new (read with a FutureWarning)
 RENAMED_ASSOCIATION_KEYS = {"detection_covariance": "innovation_gate"}
+# keys that are gone, with what took their place
+REMOVED_ASSOCIATION_KEYS = {
+    "weak_tentative": "young objects are tentative while maintenance.existence confirms them"
+}
 
 
 # --------------------------------------------------------------------------- schema
@@ -298,7 +302,8 @@ class AssociationConfig(_Strict):
     @model_validator(mode="before")
     @classmethod
     def _renamed_keys(cls, data: Any) -> Any:
-        """Configs written before a key was renamed keep working, with a warning."""
+        """Configs written before a key was renamed, or removed, keep working, with a
+        warning."""
         if not isinstance(data, dict):
             return data
         for old, new in RENAMED_ASSOCIATION_KEYS.items():
@@ -310,6 +315,10 @@ class AssociationConfig(_Strict):
                 )
                 data = {**data, new: data[old]}
                 del data[old]
+        for old, instead in REMOVED_ASSOCIATION_KEYS.items():
+            if old in data:
+                warnings.warn(f"association.{old} is ignored: {instead}", FutureWarning, 2)
+                data = {k: v for k, v in data.items() if k != old}
         return data
 
     w_sem: float = Field(0.3, ge=0.0, le=1.0, description="semantic weight w_sem")
@@ -321,13 +330,6 @@ class AssociationConfig(_Strict):
         "between neighbours, unless given here",
     )
     use_semantics: bool = True
-    weak_tentative: bool = Field(
-        True,
-        description="until an object is seen more than maintenance.prune_max_meas times, "
-        "its detections' factors have their sharpest sigma raised to d_inter "
-        "(association.tentative_inflation): the second sighting of clutter cannot pull "
-        "the poses; not in the paper",
-    )
     innovation_gate: bool = Field(
         False,
         description="compare e against its whole covariance instead of the paper's K_n "
@@ -347,7 +349,7 @@ class AssociationConfig(_Strict):
         "defaults are for: unless set here, it is gated on the whole innovation "
         "(innovation_gate, at landmark_gate_chi2, over landmark_sigma_max), d_inter is three "
         "of the detections' sharpest sigma, rows are off unless rows.enabled is set, and the "
-        "crop camera's clutter guards (weak_tentative, maintenance.existence) are off",
+        "crop camera's confirmation of young objects (maintenance.existence) is off",
     )
     landmark_gate_chi2: float = Field(
         9.21, gt=0.0, description="the gate without a field prior: 99 % of a 2D position"
@@ -467,9 +469,20 @@ class MaintenanceConfig(_Strict):
     prune_grace_s: float = Field(20.0, ge=0.0, description="s unseen before pruning")
     existence: bool = Field(
         True,
-        description="at the end of the survey, prune the objects whose detections in the "
-        "frames that had them in view say they are not there (clutter that caught a few "
-        "stray detections; maintenance.py): not in the paper",
+        description="a new object is tentative until the frames that had it in view confirm "
+        "it (detected in enough of them, with the detection and stray rates learned from the "
+        "survey: maintenance.Existence); until then its detections' factors get "
+        "association.d_inter of isotropic noise added, so clutter cannot pull the poses, and "
+        "it joins no row; it is dropped once they say it is not there, or at the end of the "
+        "survey if it is more likely not there than there: not in the paper (it replaces "
+        "association.weak_tentative)",
+    )
+    confirm_p: float = Field(
+        0.999,
+        gt=0.5,
+        lt=1.0,
+        description="posterior probability of being there (or not) that confirms (drops) a "
+        "tentative object; it needs two frames' sightings at least",
     )
     stray_rate_prior: float = Field(
         0.05,

@@ -6,7 +6,8 @@ and its beliefs (its `BeliefTable`, the table's semantic columns, with the measu
 count and last update the interest heuristic reads): whether it is active, merged into
 another or pruned; in how many frames it was seen and which robot saw it last, where (in
 that robot's dead-reckoning frame) and with what drift of its chain then (geometry/drift.py,
-geometry/calibration.py); whether the pruner still watches it.
+geometry/calibration.py); whether the pruner still watches it; whether it is still
+tentative and in how many frames it was in view (maintenance.Existence).
 `retire` is the one way out of the map: the parts that keep state of their own per
 object (the spatial index) subscribe to it.
 """
@@ -49,6 +50,8 @@ class ObjectTable:
         self._seen_xy = np.zeros((capacity, 2))
         self._seen_cov = np.zeros((capacity, 2, 2))
         self._young = np.zeros(capacity, dtype=bool)
+        self._tentative = np.zeros(capacity, dtype=bool)
+        self._views = np.zeros(capacity, dtype=np.int64)
         self._on_retire: list[Callable[[np.ndarray], None]] = []
 
     def __len__(self) -> int:
@@ -80,9 +83,22 @@ class ObjectTable:
         """Objects the pruner still watches (n,), read-write for the pruner."""
         return self._young[: self._n]
 
+    @property
+    def tentative(self) -> np.ndarray:
+        """Objects not yet confirmed by their sightings (n,), read-write for
+        maintenance.Existence; a saved map's plants never are."""
+        return self._tentative[: self._n]
+
+    @property
+    def views(self) -> np.ndarray:
+        """Frames of this survey each object was in the camera's view in (n,), counted
+        while it is active (maintenance.Existence)."""
+        return self._views[: self._n]
+
     # ---------------------------------------------------------------- lifecycle
-    def add(self, count: int, t: float) -> np.ndarray:
-        """`count` new active objects at time t, watched by the pruner; their ids."""
+    def add(self, count: int, t: float, tentative: bool = False) -> np.ndarray:
+        """`count` new active objects at time t, watched by the pruner, tentative if asked;
+        their ids."""
         ids = self.beliefs.add(count, t)
         self._reserve(len(self.beliefs))
         self._status[ids] = STATUS_ACTIVE
@@ -90,6 +106,8 @@ class ObjectTable:
         self._n_frames[ids] = 0
         self._seen_by[ids] = NO_ROBOT
         self._young[ids] = True
+        self._tentative[ids] = tentative
+        self._views[ids] = 0
         self._n = len(self.beliefs)
         return ids
 
@@ -107,7 +125,10 @@ class ObjectTable:
 
     def absorb(self, keep: int, drop: int) -> None:
         """`keep` now stands for `drop` too: it was last seen when `drop` was, if later
-        by the same robot's chain (or seen by no robot of its own)."""
+        by the same robot's chain (or seen by no robot of its own). It is tentative while
+        both were, in view as often as the more often viewed."""
+        self._tentative[keep] &= self._tentative[drop]
+        self._views[keep] = max(self._views[keep], self._views[drop])
         robot = self._seen_by[drop]
         if robot == NO_ROBOT:
             return
@@ -126,6 +147,7 @@ class ObjectTable:
         self._merged_into[ids] = into
         self._seen_by[ids] = NO_ROBOT
         self._young[ids] = False
+        self._tentative[ids] = False
         for listener in self._on_retire:
             listener(ids)
 
@@ -173,6 +195,8 @@ class ObjectTable:
         self._seen_xy = _grown(self._seen_xy, size, 0.0)
         self._seen_cov = _grown(self._seen_cov, size, 0.0)
         self._young = _grown(self._young, size, False)
+        self._tentative = _grown(self._tentative, size, False)
+        self._views = _grown(self._views, size, 0)
 
 
 def _grown(old: np.ndarray, size: int, fill: float) -> np.ndarray:

@@ -115,7 +115,7 @@ class RunResult:
     output_errors: dict[str, str] = field(default_factory=dict)
     source_report: SourceReport | None = None
     noise: dict[str, Any] | None = None  # the noise scales the run estimated (calibration.py)
-    existence: dict[str, Any] | None = None  # the end-of-survey existence test (maintenance.py)
+    existence: dict[str, Any] | None = None  # young objects confirmed, dropped (maintenance.py)
     gnss: dict[str, int] = field(default_factory=dict)  # fixes used and rejected (issue 13)
     checkpoints: dict[str, Any] | None = None  # resumed at which record, checkpoints taken
     season: dict[str, Any] | None = None  # a survey that continued a saved map (issue 15)

@@ -23,7 +23,6 @@ from agrislam.association import (
     informative_measurements,
     innovation_covariance,
     max_association_distance,
-    tentative_inflation,
 )
 from agrislam.config import AgrislamConfig, AssociationConfig, FieldSchema
 from agrislam.geometry import se2
@@ -62,6 +61,7 @@ STAGES = (
     "associate",  # gate, association matrix, GNN; new objects
     "noise",  # pairs of sightings of re-observed objects scale the noise (calibration.py)
     "beliefs",  # Bayes / Kalman updates, each belief brought to t first
+    "confirm",  # young objects in view: counted, confirmed or dropped (maintenance.Existence)
     "optimise",  # measurement factors and the back end's incremental solve
     "index",  # the spatial index follows the objects the solve moved
     "depth_bias",  # the depth bias learned from this frame's residuals
@@ -211,14 +211,12 @@ class WorldModel:
             "gate_sigma_max": configured.landmark_sigma_max,
             # nearer than three sigmas of its sharpest axis, a detection cannot tell two apart
             "d_inter": 3.0 * sharpest,
-            # landmarks seen now and then from far (no camera's footprint): the clutter
-            # guards of a crop survey cost real ones (Victoria Park: 114 -> 73 trees kept)
-            "weak_tentative": False,
         }
         update = {k: v for k, v in generic.items() if k not in chosen}
         self.association = self.association.model_copy(update=update)
         if self.rows is not None and "enabled" not in self.config.rows.model_fields_set:
             self.rows = None
+        # landmarks seen now and then from far: no confirmation (it cost VP 41 of 114 trees)
         if "existence" not in self.config.maintenance.model_fields_set:
             self.existence = Existence(
                 self.config.maintenance.model_copy(update={"existence": False})
@@ -262,19 +260,17 @@ class WorldModel:
             self._sighted(robot, placed, object_ids, new_ids)
         with timer("beliefs"):
             self.beliefs.update(object_ids, [d.attributes for d in detections], t)
+        with timer("confirm"):
+            self.existence.observe(placed.robot_xy)
+            pose = self.backend.current_pose(robot)
+            dropped = self.existence.look(pose, self.index, seen, self.objects, self._first_own)
         with timer("optimise"):
             sigma_scale = float(self.noise.scale.sigma[0])
-            weak = self.objects.young[object_ids] & self.association.weak_tentative
-            weak = tentative_inflation(placed.robot_cov, weak, self.association.d_inter)
-            for det, obj, xy, cov, k in zip(
-                detections,
-                object_ids.tolist(),
-                placed.robot_xy,
-                placed.robot_cov,
-                weak,
-                strict=True,
-            ):
-                measurement = self.sensor.measurement(det, xy, cov * k * k, sigma_scale * k)
+            # a tentative object's detections say where it is, not where the robot is
+            floor = np.where(self.objects.tentative[object_ids], self.association.d_inter, 0.0)
+            factors = (detections, object_ids.tolist(), placed.robot_xy, placed.robot_cov, floor)
+            for det, obj, xy, cov, f in zip(*factors, strict=True):
+                measurement = self.sensor.measurement(det, xy, cov, sigma_scale, float(f))
                 self.backend.add_observation(robot, obj, measurement)
             self.backend.update()
         with timer("index"):
@@ -283,10 +279,12 @@ class WorldModel:
             self._calibrate_depth(robot, placed, object_ids)
         with timer("rows"):
             if self.rows is not None:
-                self.rows.after_step(self.backend, seen, len(detections), self.objects.n_frames)
+                # a tentative object joins no row: clutter would bend the rows
+                confirmed = np.where(self.objects.tentative, 0, self.objects.n_frames)
+                self.rows.after_step(self.backend, seen, len(detections), confirmed)
         with timer("maintain"):
-            self.existence.observe(placed.robot_xy)
             result = self._maintain(seen, t)
+            result.pruned += self._prune(self.objects.active(dropped).tolist())
         report = StepReport(t, robot, self.resolve(object_ids), new_ids, result, {})
         report.seconds = timer.close_step()
         return report
@@ -425,12 +423,17 @@ class WorldModel:
         spacing = nearest_other(dist)[:, k]
         self.noise.observe(*frame, (then.xy[k], then.cov[k], then.drift[k]), eligible, spacing)
 
+    @property
+    def _first_own(self) -> int:
+        """The first object id this survey started (a saved map's plants come first)."""
+        return int(self.prior.ids.max(initial=-1)) + 1 if self.prior is not None else 0
+
     def _create_objects(
         self, object_ids: np.ndarray, placed: PlacedDetections, t: float
     ) -> np.ndarray:
         """Unassigned detections become new objects (in place in `object_ids`)."""
         unassigned = np.flatnonzero(object_ids < 0)
-        new_ids = self.objects.add(len(unassigned), t)
+        new_ids = self.objects.add(len(unassigned), t, tentative=self.existence.enabled)
         for i, obj in zip(unassigned.tolist(), new_ids.tolist(), strict=True):
             self.backend.add_object(obj, placed.xy[i])
         object_ids[unassigned] = new_ids
@@ -440,16 +443,15 @@ class WorldModel:
     def finish(self) -> MaintenanceResult:
         """End of the survey: solve the whole graph once more (the real-time estimate
         folds history away, sec. 2.6), and prune the young uncertain objects still
-        waiting for their grace period: they will not be seen again; then the objects
-        the survey's detections say are not there (maintenance.Existence)."""
+        waiting for their grace period: they will not be seen again; then those still
+        tentative that the survey's detections say are not there (maintenance.Existence)."""
         self.backend.refine()
         for name, chain in self.robots.items():
             if not chain.started:
                 self.issues[f"robot {name!r} is in the meta but has no records"] += 1
         t = float(self.objects.last_update.max(initial=0.0))
         result = self._maintain(np.empty(0, dtype=int), t, grace=0.0)
-        ids = self.active_ids()  # of this survey: a saved map's plants are the season's
-        ids = ids[ids > (self.prior.ids.max(initial=-1) if self.prior is not None else -1)]
+        ids = self.objects.active(np.arange(self._first_own, len(self.objects)))  # not saved
         poses = [self.backend.trajectory(r)[1] for r, c in self.robots.items() if c.started]
         absent = self.existence.absent(ids, self.backend.object_positions, self.objects, poses)
         result.pruned += self._prune(absent)

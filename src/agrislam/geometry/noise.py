@@ -95,14 +95,25 @@ class SensorModel:
         )
 
     def measurement(
-        self, det: Detection, xy: np.ndarray, cov: np.ndarray, sigma_scale: float = 1.0
+        self,
+        det: Detection,
+        xy: np.ndarray,
+        cov: np.ndarray,
+        sigma_scale: float = 1.0,
+        floor: float = 0.0,
     ) -> Measurement:
         """The factor's measurement in the form the detection came in (xy: bias-corrected,
-        cov: scaled; a range and bearing's sigmas are scaled by `sigma_scale`)."""
+        cov: scaled; a range and bearing's sigmas are scaled by `sigma_scale`), with
+        `floor` m of isotropic noise added (a tentative object's: maintenance.Existence)."""
         if det.range is not None and det.xy is None:
-            sigmas = sigma_scale * np.asarray(self.range_bearing_sigmas(det))
-            return RangeBearing(float(np.hypot(*xy)), det.bearing, *sigmas.tolist())
-        return RelativePosition(xy, cov)
+            sigma_range, sigma_bearing = sigma_scale * np.asarray(self.range_bearing_sigmas(det))
+            r = float(np.hypot(*xy))
+            sigmas = (
+                np.hypot(sigma_range, floor),
+                np.hypot(sigma_bearing, floor / max(r, MIN_RANGE)),
+            )
+            return RangeBearing(r, det.bearing, *map(float, sigmas))
+        return RelativePosition(xy, cov + floor**2 * np.eye(2))
 
 
 def range_bearing_jacobian(xy: np.ndarray) -> np.ndarray:

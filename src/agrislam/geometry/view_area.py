@@ -44,13 +44,19 @@ class ViewArea:
         near = cKDTree(poses[:, :2]).query_ball_point(xy, self.range[1])
         for k, frames in enumerate(near):
             if frames:
-                local = in_robot_frames(poses[frames], xy[k])
-                r = np.hypot(local[:, 0], local[:, 1])
-                b = np.arctan2(local[:, 1], local[:, 0])
-                inside = (r >= self.range[0]) & (r <= self.range[1])
-                inside &= (b >= self.bearing[0]) & (b <= self.bearing[1])
-                counts[k] = int(inside.sum())
+                counts[k] = int(self.contains(in_robot_frames(poses[frames], xy[k])).sum())
         return counts
+
+    def in_view(self, pose: np.ndarray, xy: np.ndarray) -> np.ndarray:
+        """(k,) whether each map point (k, 2) is inside the area seen from one pose (3,)."""
+        return self.contains(in_robot_frames(np.asarray(pose, dtype=float)[None, :], xy))
+
+    def contains(self, local: np.ndarray) -> np.ndarray:
+        """(k,) whether each robot-frame point (k, 2) is inside the area."""
+        r = np.hypot(local[:, 0], local[:, 1])
+        b = np.arctan2(local[:, 1], local[:, 0])
+        inside = (r >= self.range[0]) & (r <= self.range[1])
+        return inside & (b >= self.bearing[0]) & (b <= self.bearing[1])
 
 
 def log_odds_absent(
@@ -65,7 +71,8 @@ def log_odds_absent(
 
 
 def in_robot_frames(poses: np.ndarray, xy: np.ndarray) -> np.ndarray:
-    """(m, 2) the map point xy in the frame of each robot pose (m, 3)."""
+    """(m, 2) the map point xy (2,) in the frame of each robot pose (m, 3); or (k, 2) the
+    map points xy (k, 2) in the frame of one pose (1, 3)."""
     d = xy - poses[:, :2]
     c, s = np.cos(poses[:, 2]), np.sin(poses[:, 2])
     return np.column_stack([c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1]])
