@@ -36,6 +36,7 @@ from agrislam.geometry.conditioning import (
     FREE_SIGMA,
     components,
     conditioned,
+    indeterminate_key,
     isolating,
     marginal_covariances,
     shared_copy,
@@ -51,6 +52,7 @@ from agrislam.geometry.isam_state import (
     SlotTable,
     anchor_factor,
     per_distinct,
+    rebuilt_isam2,
     restore_isam2,
     serialised_isam2,
     values_at,
@@ -235,12 +237,35 @@ class IncrementalBackend(BackendBase):
 
     def _solve_pending(self, extra: gtsam.NonlinearFactorGraph | None = None) -> None:
         """One iSAM2 update with what is pending (and `extra`'s factors)."""
-        filled = self._pending.flush(self._isam, extra)
+        try:
+            filled = self._pending.flush(self._isam, extra)
+        except RuntimeError as err:
+            filled = self._isolate(err, extra)
         if filled is not None:
             self._slots.fill(filled)
             for _, entry in filled:  # what the update measured is read again
                 for key in entry.keys:
                     self._cov_cache.pop(key, None)
+
+    def _isolate(
+        self, err: RuntimeError, extra: gtsam.NonlinearFactorGraph | None
+    ) -> list[tuple[int, Entry]] | None:
+        """The update was indeterminate near a node (a row without members): a fresh iSAM2
+        of the live factors, the node held by a weak prior, the update again (issue 12)."""
+        key = indeterminate_key(err)
+        if key is None or (key not in self._live and self._pending.guess(key) is None):
+            raise err
+        live, broken, self._isam = self._slots.ordered(), self._isam, isam2(self.slam)
+        rebuilt_isam2(broken, [slot for slot, _ in live], self._isam)
+        self._pending.renumber({slot: n for n, (slot, _) in enumerate(live)})
+        self._slots.reset(entry for _, entry in live)
+        self._cov_cache.clear()  # raises below only if the update fails again
+        insert_value(point := gtsam.Values(), key, self._estimate(key))
+        held = conditioned(gtsam.NonlinearFactorGraph(), point, None, [key])
+        held.push_back(extra if extra is not None else gtsam.NonlinearFactorGraph())
+        kind = {POSE: "pose", ROW: "row"}.get(key_kind(key), "object")
+        self.issues[f"{kind} held by a weak prior: indeterminate in an iSAM2 update"] += 1
+        return self._pending.flush(self._isam, held)
 
     def _fold(self) -> None:
         """Keyframe each robot's latest pose; marginalise the rest of the window out (and
@@ -354,9 +379,8 @@ class IncrementalBackend(BackendBase):
         point: gtsam.Values,
         blanket: list[int],
     ) -> list[np.ndarray]:
-        """Covariances of objects `keys` given `keyframe` in its frame, from the part of
-        the graph around connected to it (`parts()[keyframe]`, its factors and nodes);
-        should even that fail, they are FREE_SIGMA wide and the run goes on."""
+        """Covariances of objects `keys` given `keyframe` in its frame, from the part of the
+        graph around connected to it (`parts()[keyframe]`); failing that, FREE_SIGMA wide."""
         local, nodes = parts()[keyframe]
         free = [k for k in blanket if k in nodes]
 

@@ -18,7 +18,7 @@ from typing import TypeVar
 import gtsam
 import numpy as np
 
-from agrislam.geometry.batch import insert_value
+from agrislam.geometry.batch import insert_value, value_array
 from agrislam.geometry.graph import POSE
 from agrislam.geometry.noise import gaussian, relative_to_range_bearing
 from agrislam.geometry.se2 import compose, rotation
@@ -141,6 +141,11 @@ class PendingUpdate:
     def remove(self, slots: Iterable[int]) -> None:
         """Factor slots of iSAM2 to remove at the next update."""
         self._removals.extend(slots)
+
+    def renumber(self, slots: dict[int, int]) -> None:
+        """iSAM2 was rebuilt with its live slots numbered afresh (old -> new); removals
+        of slots that it no longer holds are done."""
+        self._removals = [slots[s] for s in self._removals if s in slots]
 
     # ------------------------------------------------------------------- flush
     def flush(
@@ -444,6 +449,18 @@ def serialised_isam2(isam: gtsam.ISAM2, slots: list[int]) -> tuple[str, str]:
     for slot in slots:
         graph.push_back(factors.at(slot))
     return graph.serialize(), isam.getLinearizationPoint().serialize()
+
+
+def rebuilt_isam2(isam: gtsam.ISAM2, slots: list[int], fresh: gtsam.ISAM2) -> None:
+    """`fresh` given `isam`'s factors in `slots` (they take slots 0, 1, ...) at its
+    linearisation point: what an update that threw left half done, made whole again."""
+    factors, graph = isam.getFactorsUnsafe(), gtsam.NonlinearFactorGraph()
+    for slot in slots:
+        graph.push_back(factors.at(slot))
+    point, values = isam.getLinearizationPoint(), gtsam.Values()
+    for key in graph.keyVector():
+        insert_value(values, key, value_array(point, key))
+    fresh.update(graph, values)
 
 
 def restore_isam2(isam: gtsam.ISAM2, saved: tuple[str, str]) -> None:
