@@ -332,7 +332,7 @@ class RetiredObjects(Retired):
     covariance of z given the keyframe.
 
     A keyframe fold retires objects at once but may leave their covariances (most of a
-    fold's work, issue 14) to be `defer`red: `settle` computes the oldest a step later,
+    fold's work, issue 14) to be `defer`red: `pace` computes the oldest a step later,
     and every read of a covariance settles what it reads first. The result does not
     depend on when it is computed (a deferred computation holds its own graph and values),
     so the map is the same whether it runs at once, later, or before a checkpoint."""
@@ -442,21 +442,24 @@ def deserialised(into: Serialisable, text: str) -> Serialisable:
     return into
 
 
-def serialised_isam2(isam: gtsam.ISAM2, slots: list[int]) -> tuple[str, str]:
-    """iSAM2's factors in `slots` (in that order) and its linearisation point, in GTSAM's
-    serialisation (17 significant digits: every double comes back to the last bit)."""
+def slot_factors(isam: gtsam.ISAM2, slots: list[int]) -> gtsam.NonlinearFactorGraph:
+    """iSAM2's factors in `slots`, in that order."""
     factors, graph = isam.getFactorsUnsafe(), gtsam.NonlinearFactorGraph()
     for slot in slots:
         graph.push_back(factors.at(slot))
-    return graph.serialize(), isam.getLinearizationPoint().serialize()
+    return graph
+
+
+def serialised_isam2(isam: gtsam.ISAM2, slots: list[int]) -> tuple[str, str]:
+    """iSAM2's factors in `slots` (in that order) and its linearisation point, in GTSAM's
+    serialisation (17 significant digits: every double comes back to the last bit)."""
+    return slot_factors(isam, slots).serialize(), isam.getLinearizationPoint().serialize()
 
 
 def rebuilt_isam2(isam: gtsam.ISAM2, slots: list[int], fresh: gtsam.ISAM2) -> None:
     """`fresh` given `isam`'s factors in `slots` (they take slots 0, 1, ...) at its
     linearisation point: what an update that threw left half done, made whole again."""
-    factors, graph = isam.getFactorsUnsafe(), gtsam.NonlinearFactorGraph()
-    for slot in slots:
-        graph.push_back(factors.at(slot))
+    graph = slot_factors(isam, slots)
     point, values = isam.getLinearizationPoint(), gtsam.Values()
     for key in graph.keyVector():
         insert_value(values, key, value_array(point, key))
