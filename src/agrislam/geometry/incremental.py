@@ -253,7 +253,7 @@ class IncrementalBackend(BackendBase):
         """The update was indeterminate near a node (a row without members): a fresh iSAM2
         of the live factors, the node held by a weak prior, the update again (issue 12)."""
         key = indeterminate_key(err)
-        if key is None or (key not in self._live and self._pending.guess(key) is None):
+        if key is None or key not in self._live:  # (entered nodes are live already)
             raise err
         live, broken, self._isam = self._slots.ordered(), self._isam, isam2(self.slam)
         rebuilt_isam2(broken, [slot for slot, _ in live], self._isam)

@@ -356,8 +356,7 @@ class RetiredObjects(Retired):
 
     def covariances(self, rows: np.ndarray) -> np.ndarray:
         """(k, 2, 2) the covariances of `rows`, what is deferred among them settled."""
-        keys = self.keys[rows].tolist()
-        self._settle_jobs({self._waiting[k] for k in keys if k in self._waiting})
+        self._settle_for(self.keys[rows].tolist())
         return self._columns["cov"][rows]
 
     def defer(self, keys: list[int], compute: Callable[[], list[np.ndarray]]) -> None:
@@ -376,6 +375,10 @@ class RetiredObjects(Retired):
         if not self._settled:
             self.settle(1)
         self._settled = 0
+
+    def _settle_for(self, keys: Iterable[int]) -> None:
+        """Compute what the covariances of `keys` wait for, if anything."""
+        self._settle_jobs({self._waiting[k] for k in keys if k in self._waiting})
 
     def _settle_jobs(self, jobs: set[Deferred]) -> None:
         for job in [j for j in self._deferred if j in jobs]:  # in the order deferred
@@ -397,8 +400,7 @@ class RetiredObjects(Retired):
         row = self._row.get(key)
         if row is None:
             return None
-        if key in self._waiting:
-            self._settle_jobs({self._waiting[key]})
+        self._settle_for([key])
         c = self._columns
         return Anchored(int(c["keyframes"][row]), c["local"][row].copy(), c["cov"][row].copy())
 
