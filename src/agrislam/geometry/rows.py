@@ -54,6 +54,18 @@ def search_angle(points: np.ndarray, spacing: float) -> float:
     return float(fine[np.argmax(periodicity(points, fine, spacing))])
 
 
+def ambiguity(points: np.ndarray, angle: float, spacing: float) -> float:
+    """The highest rival peak of the points' periodicity over the row angle, relative to
+    theirs at `angle` (the best): near 1 when another row direction explains them as well
+    (a few points lie on a lattice at many angles), low once many points across rows agree.
+    A rival is a local maximum of the periodicity other than the one at `angle`."""
+    angles = angle + np.arange(COARSE_STEP / 2, math.pi, COARSE_STEP / 2)  # half a turn on
+    p = periodicity(points, np.r_[angle, angles], spacing)
+    rising, falling = p[1:-1] > p[:-2], p[1:-1] >= p[2:]
+    rivals = p[1:-1][rising & falling]
+    return float(rivals.max() / max(p[0], 1e-9)) if len(rivals) else 0.0
+
+
 def fit_rows(
     points: np.ndarray,
     spacing: float,
@@ -135,11 +147,18 @@ class RowTracker:
         near a row their row constraint. `frames_seen[i]`: frames object i was seen in."""
         self._backend = backend
         self.n_detections += int(n_new_detections)
+        touched = np.asarray(touched_object_ids, dtype=np.int64)
         if self.n_detections >= self.next_fit:
+            first = self.angle is None
             self._fit(backend, frames_seen)
-            self.next_fit = 2 * self.n_detections  # refit as the evidence doubles
+            if self.angle is None:  # too few objects yet: try again soon
+                self.next_fit = self.n_detections + self.config.n_det_est
+            else:  # refit as the evidence doubles
+                self.next_fit = 2 * self.n_detections
+            if first and self.angle is not None:  # the objects seen before the rows join
+                touched = backend.object_ids()
         if self.angle is not None:
-            self._assign(backend, np.asarray(touched_object_ids, dtype=np.int64), frames_seen)
+            self._assign(backend, touched, frames_seen)
 
     def _fit_points(
         self, backend: GraphBackend, frames_seen: np.ndarray
@@ -153,14 +172,19 @@ class RowTracker:
 
     def _fit(self, backend: GraphBackend, frames_seen: np.ndarray) -> None:
         ids, points = self._fit_points(backend, frames_seen)
-        if len(ids) < 2:
-            return
-        sigma = math.radians(self.config.angle_prior_sigma_deg)
         previous = self.angle
+        angle0 = previous if previous is not None else self.angle_prior
+        if previous is None and len(ids) < self.config.min_fit_objects:
+            return
+        if angle0 is None:  # the first fit: kept only once no other angle rivals it
+            angle0 = search_angle(points, self.spacing)
+            if ambiguity(points, angle0, self.spacing) > self.config.first_fit_ambiguity:
+                return
+        sigma = math.radians(self.config.angle_prior_sigma_deg)
         angle, offset = fit_rows(
             points,
             self.spacing,
-            angle0=self.angle if self.angle is not None else self.angle_prior,
+            angle0=angle0,
             offset0=None if self.angle is None else self.offset,
             angle_prior=self.angle_prior,
             angle_sigma=sigma,
