@@ -47,6 +47,16 @@ class ViewArea:
                 counts[k] = int(self.contains(in_robot_frames(poses[frames], xy[k])).sum())
         return counts
 
+    def hits(
+        self, poses: np.ndarray, sightings: tuple[np.ndarray, np.ndarray], xy: np.ndarray
+    ) -> np.ndarray:
+        """(k,) frames (poses (m, 3)) in which each map point (k, 2) was inside the area and
+        detected: the sightings (rows of the poses, rows of the points; each pair once)
+        counted where `views` counts, so that hits <= views."""
+        pose_row, point_row = sightings
+        inside = self.contains(in_robot_frames(poses[pose_row], xy[point_row]))
+        return np.bincount(point_row[inside], minlength=len(xy))
+
     def in_view(self, pose: np.ndarray, xy: np.ndarray) -> np.ndarray:
         """(k,) whether each map point (k, 2) is inside the area seen from one pose (3,)."""
         return self.contains(in_robot_frames(np.asarray(pose, dtype=float)[None, :], xy))
@@ -72,7 +82,8 @@ def log_odds_absent(
 
 def in_robot_frames(poses: np.ndarray, xy: np.ndarray) -> np.ndarray:
     """(m, 2) the map point xy (2,) in the frame of each robot pose (m, 3); or (k, 2) the
-    map points xy (k, 2) in the frame of one pose (1, 3)."""
+    map points xy (k, 2) in the frame of one pose (1, 3); or (m, 2) each map point xy
+    (m, 2) in the frame of its own pose (m, 3)."""
     d = xy - poses[:, :2]
     c, s = np.cos(poses[:, 2]), np.sin(poses[:, 2])
     return np.column_stack([c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1]])
