@@ -292,6 +292,20 @@ def test_the_detection_rate_counts_sightings_and_views_in_the_same_area():
     assert 44 in ch.kept.tolist()
 
 
+def test_the_seen_area_is_shrunk_at_its_far_edge_and_sides_only():
+    """The margin keeps views off the edges where the detection rate falls; the near edge
+    (the highest rate, the views of headland turns) keeps its learned bound."""
+    from agrislam.prior.changes import ViewArea
+
+    r, b = np.meshgrid(np.linspace(1.0, 2.5, 31), np.linspace(-0.6, 0.6, 25))
+    robot_xy = np.column_stack([(r * np.cos(b)).ravel(), (r * np.sin(b)).ravel()])
+    plain, shrunk = ViewArea.learned(robot_xy, 0.0), ViewArea.learned(robot_xy, 0.2)
+    assert shrunk.range[0] == plain.range[0]
+    assert shrunk.range[1] == pytest.approx(plain.range[1] - 0.2)
+    assert shrunk.bearing[1] == pytest.approx(plain.bearing[1] - 0.2 / plain.range[1])
+    assert shrunk.bearing[0] == pytest.approx(plain.bearing[0] + 0.2 / plain.range[1])
+
+
 def test_the_back_end_tells_what_was_seen_from_where():
     from agrislam.geometry.backend import RelativePosition
 
