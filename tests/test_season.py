@@ -10,6 +10,7 @@ from agrislam.config import AgrislamConfig, RowsConfig, SeasonConfig, SlamConfig
 from agrislam.geometry import se2
 from agrislam.geometry.backend import make_backend
 from agrislam.geometry.graph import PRIOR_POINT
+from agrislam.geometry.view_area import in_robot_frames
 from agrislam.prior.relocalise import Relocaliser, cluster, detection_spread, rigid_fit
 from agrislam.records import Meta
 from agrislam.sinks.history import History, plant_rows, read_history, write_history
@@ -242,10 +243,89 @@ def test_changes_by_the_binomial_posterior():
     saved = np.array([[5.0, 0.5], [6.0, 0.5], [7.0, -0.5], [5.0, 30.0]])
     seen = np.array([9, 1, 0, 0])  # there; one stray detection; none; never in view
     new = (np.array([10, 11]), np.array([[8.0, 0.3], [9.0, 0.2]]), np.array([8, 1]))
-    ch = find_changes(np.arange(4), saved, seen, new, poses, area, SeasonConfig())
+    there, stray = (np.flatnonzero(area.contains(in_robot_frames(poses, p))) for p in saved[:2])
+    seen_from = (np.r_[there, stray[:1]], np.r_[np.zeros(len(there), dtype=int), 1])
+    ch = find_changes(np.arange(4), saved, seen, new, poses, seen_from, area, SeasonConfig())
     assert ch.kept.tolist() == [0] and ch.gone.tolist() == [1, 2] and ch.unseen.tolist() == [3]
     assert (ch.p_gone > 0.95).all()
     assert ch.new.tolist() == [10] and ch.unconfirmed.tolist() == [11]
+
+
+def _sightings_in_and_beyond_the_area(area, poses, xy, miss_every: int):
+    """A detector that sees each plant in its in-area frames but every `miss_every`-th,
+    and also in the frames just beyond the area's far edge (where the shrunk area does not
+    count a view): (pose rows, plant rows)."""
+    rows, plants = [], []
+    for k, point in enumerate(xy):
+        inside = np.flatnonzero(area.contains(in_robot_frames(poses, point)))
+        seen = inside[np.arange(len(inside)) % miss_every != miss_every - 1]
+        r = np.hypot(*(point[None, :] - poses[:, :2]).T)
+        beyond = np.flatnonzero((r > area.range[1]) & (r < area.range[1] + 0.5))
+        rows.append(np.r_[seen, beyond])
+        plants.append(np.full(len(seen) + len(beyond), k))
+    return np.concatenate(rows), np.concatenate(plants)
+
+
+def test_the_detection_rate_counts_sightings_and_views_in_the_same_area():
+    """Issue 15, seed 3 day 14: plants seen beyond the shrunk area once drove p_d to its
+    clip, and a weed seen in 3 of its in-area frames was marked gone; counted frame by
+    frame in the same area, p_d is the detector's, the weed stays and a removed plant with
+    clear views is still gone."""
+    from agrislam.prior.changes import ViewArea, find_changes
+
+    poses = np.column_stack([np.linspace(0, 30, 151), np.zeros(151), np.zeros(151)])
+    area = ViewArea((0.3, 2.0), (-0.7, 0.7))
+    plants = np.column_stack([np.arange(3.0, 25.0, 0.5), np.full(44, 0.5)])
+    pose_row, plant_row = _sightings_in_and_beyond_the_area(area, poses, plants, 5)
+    weed, removed = np.array([26.0, 0.5]), np.array([27.5, -0.5])
+    weed_views = np.flatnonzero(area.contains(in_robot_frames(poses, weed)))
+    assert len(weed_views) >= 6 and area.contains(in_robot_frames(poses, removed)).sum() >= 6
+    pose_row = np.r_[pose_row, weed_views[:6:2]]  # the weed: 3 of its first 6 in-area frames
+    plant_row = np.r_[plant_row, np.full(3, 44)]
+    xy = np.vstack([plants, weed, removed])
+    ids = np.arange(len(xy))
+    seen = np.bincount(plant_row, minlength=len(xy))
+    nothing = (np.zeros(0, dtype=np.int64), np.zeros((0, 2)), np.zeros(0, dtype=np.int64))
+    ch = find_changes(ids, xy, seen, nothing, poses, (pose_row, plant_row), area, SeasonConfig())
+    assert ch.p_detect == pytest.approx(6 / 7, abs=0.02)  # 6 of 7 in-area frames, not 0.99
+    assert ch.gone.tolist() == [45]  # the removed plant; the weed (44) is kept
+    assert 44 in ch.kept.tolist()
+
+
+def test_the_seen_area_is_shrunk_at_its_far_edge_and_sides_only():
+    """The margin keeps views off the edges where the detection rate falls; the near edge
+    (the highest rate, the views of headland turns) keeps its learned bound."""
+    from agrislam.prior.changes import ViewArea
+
+    r, b = np.meshgrid(np.linspace(1.0, 2.5, 31), np.linspace(-0.6, 0.6, 25))
+    robot_xy = np.column_stack([(r * np.cos(b)).ravel(), (r * np.sin(b)).ravel()])
+    plain, shrunk = ViewArea.learned(robot_xy, 0.0), ViewArea.learned(robot_xy, 0.2)
+    assert shrunk.range[0] == plain.range[0]
+    assert shrunk.range[1] == pytest.approx(plain.range[1] - 0.2)
+    assert shrunk.bearing[1] == pytest.approx(plain.bearing[1] - 0.2 / plain.range[1])
+    assert shrunk.bearing[0] == pytest.approx(plain.bearing[0] + 0.2 / plain.range[1])
+
+
+def test_the_back_end_tells_what_was_seen_from_where():
+    from agrislam.geometry.backend import RelativePosition
+
+    backend = make_backend(SlamConfig(), RowsConfig(enabled=False))
+    backend.add_robot("a", np.zeros(3), np.full(3, 0.01), 0.0)
+    backend.add_robot("b", np.array([0.0, 1.0, 0.0]), np.full(3, 0.01), 0.0)
+    for k in range(3):
+        backend.add_object(k, np.array([1.0 + k, 0.0]))
+    z = RelativePosition(xy=np.array([1.0, 0.0]), cov=np.eye(2) * 1e-4)
+    backend.add_observation("a", 0, z)
+    backend.add_odometry("a", 1.0, np.array([1.0, 0.0, 0.0]), np.eye(3) * 1e-4)
+    backend.add_observation("a", 1, z)
+    backend.add_observation("b", 2, RelativePosition(xy=np.array([3.0, -1.0]), cov=z.cov))
+    backend.update()
+    backend.merge_objects(1, 2)
+    poses, pose_row, object_id = backend.sightings()
+    assert poses.shape == (3, 3)  # a's two poses, then b's one
+    pairs = sorted(zip(pose_row.tolist(), object_id.tolist(), strict=True))
+    assert pairs == [(0, 0), (1, 1), (2, 1)]  # 2's sighting follows it into 1
+    assert np.allclose(poses[pose_row[object_id == 0][0]], [0.0, 0.0, 0.0], atol=0.01)
 
 
 def test_season_simulator_removes_plants_adds_weeds_and_hides_the_start():

@@ -224,15 +224,15 @@ class SeasonRun:
         prior, backend = self.prior, world.backend
         ids = prior.ids[world.objects.status[prior.ids] == STATUS_ACTIVE]  # not merged away
         xy = backend.object_positions(ids)
-        poses = np.vstack(
-            [backend.trajectory(r)[1] for r, chain in world.robots.items() if chain.started]
-        )
+        poses, pose_row, object_id = backend.sightings()
         area = ViewArea.learned(np.array(self._robot_xy).reshape(-1, 2), self.cfg.view_margin)
         new = world.active_ids()
         new = new[new > prior.ids.max()]
         frames = world.objects.n_frames
         fresh = (new, backend.object_positions(new), frames[new])
-        self.changes = find_changes(ids, xy, frames[ids], fresh, poses, area, self.cfg)
+        self.changes = find_changes(
+            ids, xy, frames[ids], fresh, poses, (pose_row, object_id), area, self.cfg
+        )
         if len(self.changes.gone):  # not deleted: out of the map, in its history as gone
             world.objects.retire(self.changes.gone, STATUS_GONE)
         return self.changes

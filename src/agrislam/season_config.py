@@ -63,5 +63,7 @@ class SeasonConfig(_Strict):
     view_margin: float = Field(
         0.2,
         ge=0.0,
-        description="m a plant must be inside the camera's seen area to count as looked at",
+        description="m a plant must be inside the far edge and the sides of the camera's "
+        "seen area to count as looked at (the near edge has none: the detection rate is "
+        "highest there)",
     )

@@ -23,6 +23,7 @@ from agrislam.geometry.graph import (
     Factor,
     RowNode,
     SurveyGraph,
+    key_indices,
     row_key,
 )
 from agrislam.geometry.noise import check_covariance, relative_to_range_bearing
@@ -290,6 +291,20 @@ class BackendBase:
         chain = self.graph.robot(robot)
         poses = np.array([self._estimate(k) for k in chain.keys]).reshape(-1, 3)
         return np.array(chain.times), poses
+
+    def sightings(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Every pose of the survey, (m, 3) robot by robot as `trajectory` gives them, and
+        each distinct (pose, object) pair a detection factor joins: (k,) the pose's row,
+        (k,) the object's id. What was seen from where, at the end of a survey."""
+        chains = self.graph.robots
+        if not chains:
+            return np.zeros((0, 3)), np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
+        poses = np.vstack([self.trajectory(name)[1] for name in chains])
+        keys = np.array([k for chain in chains.values() for k in chain.keys], dtype=np.uint64)
+        pairs = np.unique(self.graph.factors.keys_of(DETECTION), axis=0)
+        order = np.argsort(keys)
+        rows = order[np.searchsorted(keys, pairs[:, 0], sorter=order)]
+        return poses, rows, key_indices(pairs[:, 1])
 
 
 __all__ = ["BackendBase", "detection_record", "pose_array"]

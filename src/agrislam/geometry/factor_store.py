@@ -132,6 +132,13 @@ class FactorStore(MutableMapping[int, Factor]):
             self._head.pop(key, None)
         return found[::-1]
 
+    def keys_of(self, kind: str) -> np.ndarray:
+        """(k, MAX_KEYS) the keys of every live factor of `kind`, all at once (a factor's
+        slots past its own keys hold 0)."""
+        if kind not in self._code:
+            return np.zeros((0, MAX_KEYS), dtype=np.uint64)
+        return self._keys[np.flatnonzero(self._kind[: self._n] == self._code[kind])]
+
     def kind(self, fid: int) -> str:
         """The kind of live factor `fid`."""
         if fid not in self:

@@ -46,6 +46,11 @@ def object_keys(object_ids: np.ndarray) -> list[int]:
     return ((np.uint64(ord(OBJECT)) << np.uint64(56)) | ids).tolist()
 
 
+def key_indices(keys: np.ndarray) -> np.ndarray:
+    """`key_index` of many keys at once (GTSAM's symbol: the index below the top byte)."""
+    return (np.asarray(keys, dtype=np.uint64) & np.uint64((1 << 56) - 1)).astype(np.int64)
+
+
 def row_key(row: int) -> int:
     return gtsam.symbol(ROW, int(row))
 

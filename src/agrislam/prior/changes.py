@@ -3,12 +3,14 @@ saved plants not seen where the camera clearly looked are gone (weeded, died, ea
 a belief of being gone; plants the survey started are new.
 
 Where the camera looked is learned from the survey itself: the robot-frame area its
-detections filled (range and bearing quantiles), shrunk by a margin. A saved plant inside
-it at k frames and detected in n of them is gone with the binomial posterior
+detections filled (range and bearing quantiles), shrunk by a margin at its far edge and
+sides. A saved plant inside it at k frames and detected in n of them is gone with the
+binomial posterior
 
     P(gone) = p0 e^n (1 - e)^(k - n) / (p0 e^n (1 - e)^(k - n) + (1 - p0) p_d^n (1 - p_d)^(k - n)),
 
-p_d the share of in-view frames in which the plants clearly there (n >= 2) were detected,
+p_d the share of in-view frames in which the plants clearly there (n >= 2) were detected
+(sightings and views both counted in the area, frame by frame),
 e the rate of stray detections associated to a plant that is not there (config): a
 removed plant that caught one detection of a neighbour or of clutter is still gone.
 """
@@ -62,16 +64,19 @@ def find_changes(
     frames_seen: np.ndarray,
     new: tuple[np.ndarray, np.ndarray, np.ndarray],
     poses: np.ndarray,
+    seen_from: tuple[np.ndarray, np.ndarray],
     area: ViewArea,
     cfg: SeasonConfig,
 ) -> Changes:
     """Classify the saved plants (ids, map positions at the end of the survey), each seen
     in `frames_seen` frames of this survey, and the survey's new objects (ids, positions,
-    frames seen), given the frame poses. A new object is a new plant only when the same
-    posterior says it is there (else it is `unconfirmed`: a stray detection's object)."""
-    views = np.maximum(area.views(poses, saved_xy), frames_seen)
-    there = frames_seen >= 2
-    p_d = float(np.clip(frames_seen[there].sum() / max(views[there].sum(), 1), 0.05, 0.99))
+    frames seen), given the frame poses and what each saw (`seen_from`: rows of the poses,
+    object ids). A new object is a new plant only when the same posterior says it is there
+    (else it is `unconfirmed`: a stray detection's object)."""
+    views = area.views(poses, saved_xy)
+    hits = area.hits(poses, _rows_of(saved_ids, seen_from), saved_xy)
+    p_d = _p_detect(hits, views, frames_seen >= 2)
+    views = np.maximum(views, frames_seen)
     p_gone = 1.0 / (1.0 + np.exp(-_log_odds_gone(frames_seen, views, p_d, cfg)))
     gone = p_gone >= cfg.gone_threshold
     seen = (frames_seen > 0) & ~gone
@@ -88,3 +93,23 @@ def find_changes(
         p_detect=p_d,
         unconfirmed=np.asarray(new_ids, dtype=np.int64)[~confirmed],
     )
+
+
+def _p_detect(hits: np.ndarray, views: np.ndarray, there: np.ndarray) -> float:
+    """The detection rate in view of the plants `there`: their in-area detections over
+    their in-area frames, both counted in the same (shrunk) area frame by frame."""
+    return float(np.clip(hits[there].sum() / max(views[there].sum(), 1), 0.05, 0.99))
+
+
+def _rows_of(
+    ids: np.ndarray, seen_from: tuple[np.ndarray, np.ndarray]
+) -> tuple[np.ndarray, np.ndarray]:
+    """The sightings (pose rows, object ids) of the objects `ids`, as (pose rows, rows of
+    `ids`); the others' left out."""
+    pose_row, object_id = seen_from
+    if not len(ids):
+        return pose_row[:0], pose_row[:0]
+    order = np.argsort(ids)
+    row = order[np.minimum(np.searchsorted(ids, object_id, sorter=order), len(ids) - 1)]
+    mine = ids[row] == object_id
+    return pose_row[mine], row[mine]
