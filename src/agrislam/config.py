@@ -439,17 +439,14 @@ class RowsConfig(_Strict):
     row_spacing: float = Field(1.0, gt=0.0, description="m between neighbouring rows")
     n_det_est: int = Field(12, ge=2, description="detections before the first row fit")
     min_fit_objects: int = Field(
-        10,
-        ge=2,
-        description="objects seen in min_detections frames before the rows are first fitted: "
-        "a few points lie on a lattice at many angles, and the first angle is kept",
+        10, ge=2, description="objects seen in min_detections frames before the first row fit"
     )
     first_fit_ambiguity: float = Field(
         0.5,
         gt=0.0,
         le=1.0,
-        description="the first row fit waits while another angle (5 deg or more away) "
-        "explains the objects this well, relative to the best (periodicity ratio)",
+        description="the first row fit waits while a rival angle explains the objects this "
+        "well relative to the best (a few points lie on a lattice at many angles)",
     )
     row_angle_deg: float | None = Field(None, description="known row direction, if any")
     sigma_cross: float = Field(0.05, gt=0.0, description="m, plant to row line, across the row")
