@@ -149,14 +149,14 @@ class RowTracker:
         self.n_detections += int(n_new_detections)
         touched = np.asarray(touched_object_ids, dtype=np.int64)
         if self.n_detections >= self.next_fit:
-            first = self.angle is None
+            unfitted = self.angle is None
             self._fit(backend, frames_seen)
-            if self.angle is None:  # too few objects yet: try again soon
+            if self.angle is None:  # no unambiguous angle yet: try again soon
                 self.next_fit = self.n_detections + self.config.n_det_est
             else:  # refit as the evidence doubles
                 self.next_fit = 2 * self.n_detections
-            if first and self.angle is not None:  # the objects seen before the rows join
-                touched = backend.object_ids()
+                if unfitted:  # the first fit: the objects seen before it join their rows
+                    touched = backend.object_ids()
         if self.angle is not None:
             self._assign(backend, touched, frames_seen)
 
@@ -185,7 +185,7 @@ class RowTracker:
             points,
             self.spacing,
             angle0=angle0,
-            offset0=None if self.angle is None else self.offset,
+            offset0=None if previous is None else self.offset,
             angle_prior=self.angle_prior,
             angle_sigma=sigma,
             inlier=self.config.max_offset,
