@@ -4,6 +4,11 @@ comes out bit for bit, ids are stable, and the factors of a node are found after
 
 from __future__ import annotations
 
+import errno
+import pickle
+import tempfile
+from collections import Counter
+
 import numpy as np
 import pytest
 
@@ -53,3 +58,45 @@ def test_the_factors_of_a_node_after_removals():
     assert store.pop(new).keys == (100, 204) and store.ids_of(204) == []
     with pytest.raises(KeyError, match="in order"):
         store[50] = odometry(1, 2, 0.0)
+
+
+def filled(store: FactorStore, n: int) -> list[Factor]:
+    factors = [odometry(n + 1000, k, 0.01 * k) for k in range(n)]
+    for factor in factors:
+        store.append(factor)
+    return factors
+
+
+def same(a: Factor, b: Factor) -> bool:
+    return (
+        a.kind == b.kind
+        and a.keys == b.keys
+        and np.array_equal(a.value, b.value)
+        and (np.array_equal(a.cov, b.cov))
+    )
+
+
+def test_full_payload_chunks_go_to_disk_and_come_back_exactly():
+    store = FactorStore(capacity=2, chunk_rows=4)
+    factors = filled(store, 11)  # two chunks sealed in the file, one open
+    assert store._payload._file is not None and not store._payload._held
+    assert all(same(store[k], f) for k, f in enumerate(factors))
+    back = pickle.loads(pickle.dumps(store))  # a checkpoint: the payloads travel along
+    assert all(same(back[k], f) for k, f in enumerate(factors))
+    assert back._payload._file is not store._payload._file
+    more = odometry(1, 2, 9.0)
+    assert back.append(more) == 11 and same(back[11], more)
+
+
+def test_a_full_disk_keeps_the_record_in_memory_with_an_issue(monkeypatch):
+    def no_space(*args, **kwargs):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(tempfile, "TemporaryFile", no_space)
+    issues: Counter[str] = Counter()
+    store = FactorStore(issues=issues, chunk_rows=4)
+    factors = filled(store, 10)
+    assert all(same(store[k], f) for k, f in enumerate(factors))
+    assert issues == {
+        "factor record kept in memory: the temporary file failed (No space left on device)": 2
+    }

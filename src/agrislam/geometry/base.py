@@ -73,9 +73,9 @@ class BackendBase:
     def __init__(self, slam: SlamConfig, rows: RowsConfig) -> None:
         self.slam = slam
         self.rows_config = rows
-        self.graph = SurveyGraph()
         # degenerate geometry the solver isolated instead of stopping the run, by reason
         self.issues: Counter[str] = Counter()
+        self.graph = SurveyGraph(self.issues)
         self.refines = 0  # whole-graph solves so far: each may move every estimate
 
     # ------------------------------------------------------------ solver hooks

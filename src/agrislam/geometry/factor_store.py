@@ -4,15 +4,25 @@ arrays and a set per node of the factors touching it) cost about 1 KB each (issu
 
 A row holds a factor's kind, its keys (one or two), its value and its covariance (a
 matrix, or a scalar sigma for the row kinds); ids are row numbers, never reused, and a
-removed row is marked dead. The factors touching a node are a linked list through the
-rows (`_head[key]`, then `_next[row, slot]`), unlinked lazily: a walk skips and splices
-out the dead rows it meets. `FactorStore` is a mapping id -> `Factor` (built on access),
-so the graph's readers see the records they always did."""
+removed row is marked dead. Value and covariance (the *payload*, 120 of a row's 148
+bytes) never change and are read again only by a refine, a merge's rewiring, a checkpoint
+or an export: they are kept `chunk_rows` rows at a time, the newest chunk in memory and
+every full one in an anonymous temporary file (`PayloadChunks`), so that the record of a
+survey costs 28 bytes of memory a factor (issue 14).
+
+The factors touching a node are a linked list through the rows (`_head[key]`, then
+`_next[row, slot]`), unlinked lazily: a walk skips and splices out the dead rows it meets.
+`FactorStore` is a mapping id -> `Factor` (built on access), so the graph's readers see
+the records they always did."""
 
 from __future__ import annotations
 
+import os
+import tempfile
+from collections import Counter
 from collections.abc import Iterator, MutableMapping
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -20,6 +30,8 @@ NONE = -1
 DEAD = -1
 # a GNSS factor holds six numbers (the fix in the map frame and the lever arm, issue 13)
 MAX_KEYS, MAX_VALUE, MAX_COV = 2, 6, 3
+PAYLOAD = MAX_VALUE + MAX_COV * MAX_COV  # a row's value, then its covariance
+CHUNK_ROWS = 1 << 15  # payload rows a chunk holds: 3.9 MB
 
 
 @dataclass(slots=True)
@@ -30,10 +42,91 @@ class Factor:
     cov: np.ndarray | float
 
 
-class FactorStore(MutableMapping[int, Factor]):
-    """Factor id -> Factor, stored as columns grown by doubling (amortised O(1) per add)."""
+class PayloadChunks:
+    """Rows of PAYLOAD floats, append-only, `chunk_rows` at a time: the newest chunk in
+    memory, every full one written to an anonymous temporary file (gone with the process).
+    A chunk the file cannot take (a full disk) stays in memory, with an issue."""
 
-    def __init__(self, capacity: int = 1024) -> None:
+    def __init__(self, chunk_rows: int, issues: Counter[str]) -> None:
+        self.chunk_rows = chunk_rows
+        self.issues = issues
+        self._open = np.zeros((chunk_rows, PAYLOAD))
+        self._sealed = 0  # chunks before the open one
+        self._held: dict[int, np.ndarray] = {}  # sealed chunks the file could not take
+        self._file: Any = None
+
+    def write(self, row: int, payload: np.ndarray) -> None:
+        """Row `row` (the next one: rows come in order)."""
+        chunk, at = divmod(row, self.chunk_rows)
+        if chunk > self._sealed:
+            self._seal()
+        self._open[at] = payload
+
+    def load(self, rows: np.ndarray) -> None:
+        """Rows 0 .. len(rows) at once, into a store that holds none (`all` read back)."""
+        for start in range(0, len(rows), self.chunk_rows):
+            if start:
+                self._seal()
+            part = rows[start : start + self.chunk_rows]
+            self._open[: len(part)] = part
+
+    def read(self, row: int) -> np.ndarray:
+        chunk, at = divmod(row, self.chunk_rows)
+        if chunk == self._sealed:
+            return self._open[at].copy()
+        if chunk in self._held:
+            return self._held[chunk][at].copy()
+        size = PAYLOAD * 8
+        data = os.pread(self._file.fileno(), size, row * size)
+        return np.frombuffer(data, dtype=np.float64).copy()
+
+    def all(self, n: int) -> np.ndarray:
+        """(n, PAYLOAD) the first n rows at once (a checkpoint's state)."""
+        rows = np.empty((n, PAYLOAD))
+        for chunk in range(self._sealed):
+            part = slice(chunk * self.chunk_rows, (chunk + 1) * self.chunk_rows)
+            rows[part] = self._held[chunk] if chunk in self._held else self._chunk(chunk)
+        start = self._sealed * self.chunk_rows
+        rows[start:] = self._open[: n - start]
+        return rows
+
+    def _chunk(self, chunk: int) -> np.ndarray:
+        size = self.chunk_rows * PAYLOAD * 8
+        data = os.pread(self._file.fileno(), size, chunk * size)
+        return np.frombuffer(data, dtype=np.float64).reshape(self.chunk_rows, PAYLOAD)
+
+    def _seal(self) -> None:
+        """The open chunk to the file (or, failing that, kept as it is); a new one opens."""
+        try:
+            if self._file is None:
+                # held open for the store's life, closed (and gone) with it
+                self._file = tempfile.TemporaryFile(prefix="agrislam-factors-")  # noqa: SIM115
+            self._file.seek(self._sealed * self._open.nbytes)
+            self._file.write(self._open.tobytes())
+            self._file.flush()
+        except OSError as err:
+            reason = err.strerror or type(err).__name__
+            self.issues[f"factor record kept in memory: the temporary file failed ({reason})"] += 1
+            self._held[self._sealed] = self._open
+        self._sealed += 1
+        self._open = np.zeros_like(self._open)
+
+    def __getstate__(self) -> dict[str, Any]:
+        raise TypeError("PayloadChunks is pickled by its FactorStore")
+
+
+class FactorStore(MutableMapping[int, Factor]):
+    """Factor id -> Factor, stored as columns grown by doubling (amortised O(1) per add);
+    the payloads in `PayloadChunks`."""
+
+    def __init__(
+        self,
+        capacity: int = 1024,
+        issues: Counter[str] | None = None,
+        chunk_rows: int = CHUNK_ROWS,
+    ) -> None:
+        self.issues: Counter[str] = Counter() if issues is None else issues
+        self._payload = PayloadChunks(chunk_rows, self.issues)
         self._kinds: list[str] = []  # kind code -> name
         self._code: dict[str, int] = {}
         self._n = 0  # rows used (ids handed out)
@@ -42,11 +135,20 @@ class FactorStore(MutableMapping[int, Factor]):
         self._arity = np.zeros(capacity, dtype=np.int8)
         self._keys = np.zeros((capacity, MAX_KEYS), dtype=np.uint64)
         self._value_len = np.zeros(capacity, dtype=np.int8)
-        self._value = np.zeros((capacity, MAX_VALUE))
-        self._cov_dim = np.zeros(capacity, dtype=np.int8)  # 0: a scalar in _cov[r, 0, 0]
-        self._cov = np.zeros((capacity, MAX_COV, MAX_COV))
-        self._next = np.full((capacity, MAX_KEYS), NONE, dtype=np.int64)
+        self._cov_dim = np.zeros(capacity, dtype=np.int8)  # 0: a scalar, the payload's first
+        self._next = np.full((capacity, MAX_KEYS), NONE, dtype=np.int32)
         self._head: dict[int, int] = {}  # node key -> its latest factor's row
+
+    def __getstate__(self) -> dict[str, Any]:
+        state = self.__dict__.copy()
+        state["_payload"] = (self._payload.chunk_rows, self._payload.all(self._n))
+        return state
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        chunk_rows, rows = state.pop("_payload")
+        self.__dict__.update(state)
+        self._payload = PayloadChunks(chunk_rows, self.issues)
+        self._payload.load(rows)
 
     # --------------------------------------------------------------- mapping
     def __len__(self) -> int:
@@ -64,8 +166,10 @@ class FactorStore(MutableMapping[int, Factor]):
         r = int(fid)
         arity, n_value, d = int(self._arity[r]), int(self._value_len[r]), int(self._cov_dim[r])
         keys = tuple(int(k) for k in self._keys[r, :arity])
-        cov = self._cov[r, :d, :d].copy() if d else float(self._cov[r, 0, 0])
-        return Factor(self._kinds[self._kind[r]], keys, self._value[r, :n_value].copy(), cov)
+        payload = self._payload.read(r)
+        value, flat = payload[:n_value], payload[MAX_VALUE:]
+        cov = flat[: d * d].reshape(d, d) if d else float(flat[0])
+        return Factor(self._kinds[self._kind[r]], keys, value, cov)
 
     def __setitem__(self, fid: int, factor: Factor) -> None:
         if fid != self._n:
@@ -98,14 +202,12 @@ class FactorStore(MutableMapping[int, Factor]):
         self._arity[r] = len(keys)
         self._keys[r, : len(keys)] = keys
         self._value_len[r] = len(value)
-        self._value[r, : len(value)] = value
-        if scalar:
-            self._cov_dim[r] = 0
-            self._cov[r, 0, 0] = float(cov)
-        else:
-            d = np.shape(cov)[0]
-            self._cov_dim[r] = d
-            self._cov[r, :d, :d] = cov
+        payload = np.zeros(PAYLOAD)
+        payload[: len(value)] = value
+        flat = np.ravel(cov)
+        self._cov_dim[r] = 0 if scalar else np.shape(cov)[0]
+        payload[MAX_VALUE : MAX_VALUE + len(flat)] = flat
+        self._payload.write(r, payload)
         for slot, key in enumerate(keys):
             self._next[r, slot] = self._head.get(key, NONE)
             self._head[key] = r
@@ -150,9 +252,10 @@ class FactorStore(MutableMapping[int, Factor]):
         self._head.pop(key, None)
 
     def nbytes(self) -> int:
-        """Bytes of the columns (without the per-node list heads)."""
-        columns = (self._kind, self._arity, self._keys, self._value_len, self._value)
-        return sum(c.nbytes for c in (*columns, self._cov_dim, self._cov, self._next))
+        """Bytes of the columns in memory (without the per-node list heads and the
+        payload chunk being filled)."""
+        columns = (self._kind, self._arity, self._keys, self._value_len, self._cov_dim)
+        return sum(c.nbytes for c in (*columns, self._next))
 
     # -------------------------------------------------------------- helpers
     def _live(self, row: int) -> bool:
@@ -172,9 +275,7 @@ class FactorStore(MutableMapping[int, Factor]):
             ("_arity", 0),
             ("_keys", 0),
             ("_value_len", 0),
-            ("_value", 0.0),
             ("_cov_dim", 0),
-            ("_cov", 0.0),
             ("_next", NONE),
         ):
             old = getattr(self, name)

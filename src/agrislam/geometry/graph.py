@@ -4,6 +4,7 @@ rewrite, the global refinement solves and g2o files hold."""
 
 from __future__ import annotations
 
+from collections import Counter
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 
@@ -84,11 +85,12 @@ class RowNode:
 class SurveyGraph:
     """Records of nodes and factors; factor ids are stable, removed ones are gone."""
 
-    def __init__(self) -> None:
+    def __init__(self, issues: Counter[str] | None = None) -> None:
         self.robots: dict[str, RobotChain] = {}
         self.objects = ObjectNodes()  # id -> initial map-frame position, as arrays
         self.rows: dict[int, RowNode] = {}
-        self.factors = FactorStore()  # factor id -> Factor, as rows of arrays
+        # factor id -> Factor, as rows of arrays; what it cannot spill to disk is an issue
+        self.factors = FactorStore(issues=issues)
         self.row_of: dict[int, int] = {}  # object id -> row id of its row constraint
 
     # ---------------------------------------------------------------- nodes
