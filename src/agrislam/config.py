@@ -416,7 +416,7 @@ class SlamConfig(_Strict):
         "since history was folded onto it (a large loop closure); 0 = never",
     )
     refine_max_factors: int = Field(
-        250_000,  # about 1.7 KB of GTSAM memory a factor in a batch: ~0.4 GB at most
+        50_000,  # about 1.6 KB of GTSAM memory a factor in a batch: ~80 MB at most
         ge=0,
         description="with keyframes: refine() solves the whole recorded graph in one batch "
         "only up to this many factors (a batch costs memory in proportion); beyond, it "

@@ -18,7 +18,7 @@ class StageTimer:
     def __init__(self, stages: Sequence[str]) -> None:
         self.stages = tuple(stages)
         self.step: dict[str, float] = {}
-        self._history = GrowingRows((len(self.stages),))
+        self._history = GrowingRows((len(self.stages),), np.float32)  # us precision
 
     @property
     def history(self) -> dict[str, np.ndarray]:
