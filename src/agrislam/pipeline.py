@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 
 from agrislam.checkpoint import FORMAT, Checkpoints, RunState, adopt
+from agrislam.collector import PacedCollector
 from agrislam.config import OutputsConfig
 from agrislam.evaluation import association_counts, evaluate, write_metrics
 from agrislam.growing import GrowingRows
@@ -204,20 +205,23 @@ def _run(
     start = time.perf_counter()
     error = None
     try:
-        gated = synced if season is None else season.gate(synced, world)
-        for position, record in enumerate(_split_labels(gated, world, issues), 1):
-            if position > state.position:  # else mapped before the checkpoint resumed
-                frame = _feed(record, world, state.truth)
-                state.n_frames += frame
-                state.counts[type(record).__name__] += 1
-                state.position = position
-                if frame and checkpoints is not None and checkpoints.due(state.n_frames):
-                    state = _carry_on(world, checkpoints.take(state))
-            if progress is not None:
-                progress()
-        world.finish()
-        if season is not None:
-            season.finish(world)
+        with PacedCollector() as collector:  # no full collection mid-step
+            gated = synced if season is None else season.gate(synced, world)
+            for position, record in enumerate(_split_labels(gated, world, issues), 1):
+                if position > state.position:  # else mapped before the checkpoint resumed
+                    frame = _feed(record, world, state.truth)
+                    if frame:
+                        collector.frame()
+                    state.n_frames += frame
+                    state.counts[type(record).__name__] += 1
+                    state.position = position
+                    if frame and checkpoints is not None and checkpoints.due(state.n_frames):
+                        state = _carry_on(world, checkpoints.take(state))
+                if progress is not None:
+                    progress()
+            world.finish()
+            if season is not None:
+                season.finish(world)
     except (Exception, KeyboardInterrupt) as err:  # the map so far is still written
         error = err
     wall = time.perf_counter() - start
