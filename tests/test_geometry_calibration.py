@@ -9,6 +9,7 @@ import pytest
 from agrislam.config import AgrislamConfig, CalibrationConfig
 from agrislam.geometry import se2
 from agrislam.geometry.calibration import (
+    FISHER_ITERATIONS,
     NoiseCalibration,
     NoiseScale,
     nearest_other,
@@ -94,11 +95,31 @@ def test_the_estimate_is_renewed_every_so_many_pairs_and_reported():
     rng = np.random.default_rng(7)
     cal = NoiseCalibration(CalibrationConfig(min_pairs=200, update_every=250))
     d, comps = synthetic_pairs(rng, 1000, [1.0, 2.0, 2.0])
-    for start in range(0, 1000, 100):
-        cal.add_pairs(d[start : start + 100], comps[start : start + 100])
+    for start in range(0, 1000, 50):
+        cal.add_pairs(d[start : start + 50], comps[start : start + 50])
     report = cal.report()
-    assert report["updates"] == 3 and report["pairs_seen"] == 1000  # at 300, 600, 900
+    # due at 250 and done 7 calls later (600), due again at once and done at 1000
+    assert report["updates"] == 2 and report["pairs_seen"] == 1000
     assert report["sigma_factors"]["heading"] == report["sigma_factors"]["translation"] > 1.5
+
+
+def test_an_estimate_takes_an_iteration_a_call_and_ends_where_one_made_at_once_does():
+    rng = np.random.default_rng(11)
+    d, comps = synthetic_pairs(rng, 300, [1.0, 3.0, 3.0])
+    config = CalibrationConfig(min_pairs=200, update_every=250)
+    at_once = NoiseCalibration(config.model_copy(update={"update_every": 10**6}))
+    at_once.add_pairs(d[:250], comps[:250])
+    expected = at_once.estimate(NoiseScale.configured().variance)
+    paced = NoiseCalibration(config)
+    paced.add_pairs(d[:250], comps[:250])  # due: the first of FISHER_ITERATIONS
+    path = [paced.scale.variance[2]]
+    for k in range(1, FISHER_ITERATIONS):
+        assert paced.updates == 0  # under way: each iteration's factors apply at once
+        paced.add_pairs(d[250 + k : 251 + k], comps[250 + k : 251 + k])
+        path.append(paced.scale.variance[2])
+    np.testing.assert_array_equal(paced.scale.variance, expected)
+    assert paced.updates == 1 and paced.pairs_used == at_once.pairs_used
+    assert 1.0 < path[0] < path[-1]  # the scale moves up to the estimate step by step
 
 
 def test_only_the_latest_max_pairs_pairs_are_kept():

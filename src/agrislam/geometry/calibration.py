@@ -75,6 +75,32 @@ class NoiseScale:
         return {term: float(s) for term, s in zip(TERMS, self.sigma, strict=True)}
 
 
+@dataclass
+class Scoring:
+    """An estimate under way (`NoiseCalibration.estimate`): the pairs it is over, the
+    factors so far and the inlier share of the EM, after `done` iterations."""
+
+    d: np.ndarray  # (n, 2)
+    comps: np.ndarray  # (n, C, 2, 2)
+    start: np.ndarray  # (3,) the factors it started from
+    v: np.ndarray  # (C,) the factors so far
+    bounds: tuple[float, float]
+    outlier_density: float
+    inlier_share: float = 0.9
+    done: int = 0
+
+    def iterate(self) -> None:
+        """One EM step of the pairs' inlier weights and one Fisher step of the factors."""
+        d, comps, v = self.d, self.comps, self.v
+        cov = np.einsum("c,ncij->nij", v, comps)
+        density = np.exp(-0.5 * mahalanobis(d, cov)) / (2 * np.pi * np.sqrt(det2(cov)))
+        inlier = self.inlier_share * density
+        weight = inlier / (inlier + (1.0 - self.inlier_share) * self.outlier_density)
+        self.inlier_share = float(weight.mean())
+        self.v = np.clip(v + fisher_step(d, comps, v, weight), *self.bounds)
+        self.done += 1
+
+
 class NoiseCalibration:
     """The running estimate of `NoiseScale` from pairs of sightings (module docstring)."""
 
@@ -88,6 +114,7 @@ class NoiseCalibration:
         self.pairs_seen = 0
         self.pairs_used = 0
         self.updates = 0
+        self._scoring: Scoring | None = None  # an estimate under way
 
     @property
     def enabled(self) -> bool:
@@ -120,7 +147,8 @@ class NoiseCalibration:
 
     def add_pairs(self, d: np.ndarray, components: np.ndarray) -> None:
         """Pairs of sightings: differences d (n, 2) and their covariance components
-        (n, 3, 2, 2), unscaled; the estimate is renewed every `update_every` pairs."""
+        (n, 3, 2, 2), unscaled; the estimate is renewed every `update_every` pairs, over
+        the pairs kept then, one iteration a call, each iteration's factors used at once."""
         if not self.enabled or len(d) == 0:
             return
         keep = self.config.max_pairs
@@ -128,9 +156,17 @@ class NoiseCalibration:
         self._d[rows], self._components[rows] = d[-keep:], components[-keep:]
         self._new += len(d)
         self.pairs_seen += len(d)
-        if self.pairs_kept >= self.config.min_pairs and self._new >= self.config.update_every:
+        if self._scoring is None:
+            if self.pairs_kept < self.config.min_pairs or self._new < self.config.update_every:
+                return
             self._new = 0
-            self.scale = NoiseScale(self.estimate(self.scale.variance))
+            self._scoring = self._start(self.scale.variance)
+        # an iteration a call: an estimate over max_pairs pairs (16 ms at once) costs a
+        # step 2 ms (issue 14), and ends where one computed at once does
+        self._scoring.iterate()
+        self.scale = NoiseScale(self._finish(self._scoring))
+        if self._scoring.done == FISHER_ITERATIONS:
+            self._scoring = None
             self.updates += 1
 
     @property
@@ -141,26 +177,32 @@ class NoiseCalibration:
         """ML variance factors over the pairs kept, with the pairs that no noise explains
         (a wrong association, a moved object) as a uniform outlier component: EM over
         the pairs' share of each, Fisher scoring of the factors, from `start`."""
-        d, comps = self._d[: self.pairs_kept], self._components[: self.pairs_kept]
-        v, inlier_share = start.copy(), 0.9
+        scoring = self._start(start)
+        while scoring.done < FISHER_ITERATIONS:
+            scoring.iterate()
+        return self._finish(scoring)
+
+    def _start(self, start: np.ndarray) -> Scoring:
+        """An estimate from `start` over (a copy of) the pairs kept now."""
+        d, comps = self._d[: self.pairs_kept].copy(), self._components[: self.pairs_kept]
+        v = start.copy()
         if self.config.tie_odometry:  # one factor on the chain's translation and heading
             comps = np.stack([comps[:, 0], comps[:, 1] + comps[:, 2]], axis=1)
             v = start[:2].copy()
-        lo, hi = (b**2 for b in self.config.sigma_bounds)
+        else:
+            comps = comps.copy()
         outlier_density = 1.0 / (np.pi * max(float(np.max(np.sum(d * d, axis=1))), 1e-12))
-        for _ in range(FISHER_ITERATIONS):
-            cov = np.einsum("c,ncij->nij", v, comps)
-            density = np.exp(-0.5 * mahalanobis(d, cov)) / (2 * np.pi * np.sqrt(det2(cov)))
-            inlier = inlier_share * density
-            weight = inlier / (inlier + (1.0 - inlier_share) * outlier_density)
-            inlier_share = float(weight.mean())
-            v = np.clip(v + fisher_step(d, comps, v, weight), lo, hi)
+        bounds = tuple(b**2 for b in self.config.sigma_bounds)
+        return Scoring(d, comps, start.copy(), v, bounds, outlier_density)
+
+    def _finish(self, scoring: Scoring) -> np.ndarray:
+        v, start = scoring.v, scoring.start
         if self.config.tie_odometry:
             v = np.array([v[0], v[1], v[1]])
         # one estimate moves a sigma by at most MAX_STEP: a burst of odd pairs cannot
         # throw the gates that the next pairs are drawn through
         v = np.clip(v, start / MAX_STEP**2, start * MAX_STEP**2)
-        self.pairs_used = round(inlier_share * len(d))
+        self.pairs_used = round(scoring.inlier_share * len(scoring.d))
         return v
 
     def report(self) -> dict[str, object]:
