@@ -229,11 +229,11 @@ class IncrementalBackend(BackendBase):
     def _turned(self) -> float:
         """Largest heading change of a keyframe since history was folded onto it: the
         folded factors are linear in it, so past a few degrees they no longer hold."""
-        turned = [
-            abs(math.remainder(self._estimate(key)[2] - heading, math.tau))
-            for key, heading in self._folded_heading.items()
-        ]
-        return max(turned, default=0.0)
+        keys = np.fromiter(self._folded_heading, dtype=np.uint64)
+        headings = values_at(self._isam.calculateEstimate(), keys, 3)[:, 2]  # all at once
+        folded = np.fromiter(self._folded_heading.values(), dtype=float)
+        turned = np.remainder(headings - folded + np.pi, math.tau) - np.pi
+        return float(np.max(np.abs(turned), initial=0.0))
 
     def _solve_pending(self, extra: gtsam.NonlinearFactorGraph | None = None) -> None:
         """One iSAM2 update with what is pending (and `extra`'s factors)."""
