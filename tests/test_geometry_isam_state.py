@@ -102,6 +102,7 @@ def test_slot_table_queries_and_removal():
     assert not table.has_factor(11) and table.inside({X0, X1}) == [0, 4]
     dropped = table.drop(table.touching({L1, L0}))
     assert [e.anchor for e in dropped] == [None, anchor]
+    assert table.touching({L0, L1}) == [] and not {L0, L1} & set(table._of_key)  # unlinked
     assert not table.has_factor(12) and table.pop_factor(12) is None
     assert len(table) == 2
     table.reset([Entry((L0,), fid=20), Entry((L1,))])

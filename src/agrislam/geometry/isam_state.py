@@ -172,22 +172,27 @@ class PendingUpdate:
 
 class SlotTable:
     """The live factor slots of iSAM2 and what each holds (in the order they were filled),
-    with record factor id -> slot for the record's factors among them."""
+    with record factor id -> slot for the record's factors among them, and node -> its
+    slots, so that finding a node's factors costs its degree, not the live graph's size."""
 
     def __init__(self) -> None:
         self._entries: dict[int, Entry] = {}
         self._slot_of: dict[int, int] = {}  # fid -> slot
+        self._of_key: dict[int, set[int]] = {}  # node key -> its live slots
 
     def fill(self, filled: Iterable[tuple[int, Entry]]) -> None:
         for slot, entry in filled:
             self._entries[slot] = entry
             if entry.fid is not None:
                 self._slot_of[entry.fid] = slot
+            for key in entry.keys:
+                self._of_key.setdefault(key, set()).add(slot)
 
     def reset(self, entries: Iterable[Entry]) -> None:
         """A new iSAM2 was given these factors in this order: slots 0, 1, ..."""
         self._entries.clear()
         self._slot_of.clear()
+        self._of_key.clear()
         self.fill(enumerate(entries))
 
     def has_factor(self, fid: int) -> bool:
@@ -196,28 +201,38 @@ class SlotTable:
     def pop_factor(self, fid: int) -> int | None:
         """The slot of record factor `fid`, no longer live; None if it has none."""
         slot = self._slot_of.pop(fid, None)
-        if slot is not None:
-            self._entries.pop(slot, None)
+        if slot is not None and slot in self._entries:
+            self._unlink(slot, self._entries.pop(slot))
         return slot
 
     def keys(self, slot: int) -> tuple[int, ...]:
         return self._entries[slot].keys
 
     def touching(self, keys: set[int]) -> list[int]:
-        """The slots with any of `keys`."""
-        return [s for s, e in self._entries.items() if not keys.isdisjoint(e.keys)]
+        """The slots with any of `keys`, in slot order."""
+        return sorted({slot for key in keys for slot in self._of_key.get(key, ())})
 
     def inside(self, keys: set[int]) -> list[int]:
-        """The slots with only `keys`."""
-        return [s for s, e in self._entries.items() if keys.issuperset(e.keys)]
+        """The slots with only `keys`, in slot order."""
+        return [s for s in self.touching(keys) if keys.issuperset(self._entries[s].keys)]
 
     def drop(self, slots: Iterable[int]) -> list[Entry]:
         """The slots are no longer live; returns what they held."""
+        slots = list(slots)
         dropped = [self._entries.pop(s) for s in slots]
-        for entry in dropped:
+        for slot, entry in zip(slots, dropped, strict=True):
             if entry.fid is not None:
                 self._slot_of.pop(entry.fid, None)
+            self._unlink(slot, entry)
         return dropped
+
+    def _unlink(self, slot: int, entry: Entry) -> None:
+        for key in entry.keys:
+            held = self._of_key.get(key)
+            if held is not None:
+                held.discard(slot)
+                if not held:
+                    del self._of_key[key]
 
     def ordered(self) -> list[tuple[int, Entry]]:
         """Every live slot and its entry, by slot."""
