@@ -164,7 +164,7 @@ class NoiseCalibration:
         # an iteration a call: an estimate over max_pairs pairs (16 ms at once) costs a
         # step 2 ms (issue 14), and ends where one computed at once does
         self._scoring.iterate()
-        self.scale = NoiseScale(self._finish(self._scoring))
+        self.scale = NoiseScale(self._factors(self._scoring))
         if self._scoring.done == FISHER_ITERATIONS:
             self._scoring = None
             self.updates += 1
@@ -180,7 +180,7 @@ class NoiseCalibration:
         scoring = self._start(start)
         while scoring.done < FISHER_ITERATIONS:
             scoring.iterate()
-        return self._finish(scoring)
+        return self._factors(scoring)
 
     def _start(self, start: np.ndarray) -> Scoring:
         """An estimate from `start` over (a copy of) the pairs kept now."""
@@ -195,7 +195,8 @@ class NoiseCalibration:
         bounds = tuple(b**2 for b in self.config.sigma_bounds)
         return Scoring(d, comps, start.copy(), v, bounds, outlier_density)
 
-    def _finish(self, scoring: Scoring) -> np.ndarray:
+    def _factors(self, scoring: Scoring) -> np.ndarray:
+        """The variance factors (3,) an estimate gives after its iterations so far."""
         v, start = scoring.v, scoring.start
         if self.config.tie_odometry:
             v = np.array([v[0], v[1], v[1]])
