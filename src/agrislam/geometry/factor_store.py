@@ -76,24 +76,24 @@ class PayloadChunks:
             return self._open[at].copy()
         if chunk in self._held:
             return self._held[chunk][at].copy()
-        size = PAYLOAD * 8
-        data = os.pread(self._file.fileno(), size, row * size)
-        return np.frombuffer(data, dtype=np.float64).copy()
+        return self._from_file(row, 1)[0].copy()
 
     def all(self, n: int) -> np.ndarray:
         """(n, PAYLOAD) the first n rows at once (a checkpoint's state)."""
         rows = np.empty((n, PAYLOAD))
         for chunk in range(self._sealed):
             part = slice(chunk * self.chunk_rows, (chunk + 1) * self.chunk_rows)
-            rows[part] = self._held[chunk] if chunk in self._held else self._chunk(chunk)
+            held = self._held.get(chunk)
+            rows[part] = held if held is not None else self._from_file(part.start, self.chunk_rows)
         start = self._sealed * self.chunk_rows
         rows[start:] = self._open[: n - start]
         return rows
 
-    def _chunk(self, chunk: int) -> np.ndarray:
-        size = self.chunk_rows * PAYLOAD * 8
-        data = os.pread(self._file.fileno(), size, chunk * size)
-        return np.frombuffer(data, dtype=np.float64).reshape(self.chunk_rows, PAYLOAD)
+    def _from_file(self, row: int, count: int) -> np.ndarray:
+        """(count, PAYLOAD) rows from `row` on, read from the file (read-only)."""
+        row_bytes = PAYLOAD * 8
+        data = os.pread(self._file.fileno(), count * row_bytes, row * row_bytes)
+        return np.frombuffer(data, dtype=np.float64).reshape(count, PAYLOAD)
 
     def _seal(self) -> None:
         """The open chunk to the file (or, failing that, kept as it is); a new one opens."""
