@@ -13,11 +13,13 @@ from agrislam.geometry.isam_state import (
     PendingUpdate,
     Retired,
     RetiredObjects,
+    RetiredPoses,
     SlotTable,
     anchor_factor,
     per_distinct,
     values_at,
 )
+from agrislam.geometry.se2 import between, rotation
 
 X0, X1 = gtsam.symbol("x", 0), gtsam.symbol("x", 1)
 L0, L1 = gtsam.symbol("l", 0), gtsam.symbol("l", 1)
@@ -135,6 +137,58 @@ def test_retired_rows_stay_dense_and_follow_their_keys():
     poses = Retired(3)
     poses.put(X1, X0, np.array([1.0, 2.0, 0.1]))
     assert poses.row(X1) == 0 and poses.row(X0) is None
+
+
+def window_poses(start, end, poses):
+    """Values holding keyframes X0 (start), X1 (end) and poses x2.. at the given poses."""
+    values = gtsam.Values()
+    for n, pose in enumerate([start, end, *poses]):
+        values.insert(gtsam.symbol("x", n), gtsam.Pose2(*pose))
+    return values, [gtsam.symbol("x", 2 + n) for n in range(len(poses))]
+
+
+def test_retired_poses_sit_between_their_window_keyframes_by_distance_driven():
+    # issue 13: a window's poses were tied to its newest keyframe alone, so a correction
+    # that reached that keyframe later swung the whole window about it
+    driven = [(1.0, 0.0, 0.0), (2.0, 0.0, 0.0), (8.0, 0.0, 0.0)]
+    values, keys = window_poses((0.0, 0.0, 0.0), (10.0, 0.0, 0.0), driven)
+    table = RetiredPoses()
+    table.put_window(keys, X0, X1, values)
+    rows = table.rows(keys)
+    frames = {X0: np.array([0.0, 0.0, 0.0]), X1: np.array([10.0, 0.0, 0.0])}
+
+    def frame(keyframes):
+        return np.array([frames[int(k)] for k in keyframes]).reshape(-1, 3)
+
+    np.testing.assert_allclose(table.placed(rows, frame), driven, atol=1e-12)
+    frames[X1] = np.array([10.0, 1.0, 0.2])  # the end keyframe moved and turned later
+    moved = table.placed(rows, frame)
+    # shares 0.1, 0.2, 0.8 of the distance: each pose moves by its share of X1's move
+    np.testing.assert_allclose(moved[:, 2], [0.02, 0.04, 0.16], atol=1e-12)
+    for (x, _, _), share, got in zip(driven, (0.1, 0.2, 0.8), moved, strict=True):
+        held_by_end = frames[X1][:2] + rotation(0.2) @ [x - 10.0, 0.0]
+        np.testing.assert_allclose(got[:2], share * held_by_end + (1 - share) * np.array([x, 0]))
+    # a solution read back: every pose placed exactly where it says
+    solution, _ = window_poses(frames[X0], frames[X1], [(1.0, 0.5, 0.1), (5, 1, 0), (9, 2, 1)])
+    table.relocate_at(solution)
+    expected = values_at(solution, np.array(keys, dtype=np.uint64), 3)
+    np.testing.assert_allclose(table.placed(rows, frame), expected, atol=1e-12)
+    # the start keyframe aged away onto X1 (keyframes_kept): the places do not move
+    onto = between(frames[X1], frames[X0])  # X0 in X1's frame
+    table.rebase(X0, X1, onto)
+    assert np.all(table.starts == X1)
+    frames[X0] = np.full(3, np.nan)  # no longer read
+    np.testing.assert_allclose(table.placed(rows, frame), expected, atol=1e-9)
+
+
+def test_a_window_whose_start_is_unknown_is_held_by_its_end_keyframe():
+    values, keys = window_poses((0.0, 0.0, 0.0), (10.0, 0.0, 0.0), [(5.0, 0.0, 0.0)])
+    values.erase(X0)
+    table = RetiredPoses()
+    table.put_window(keys, X0, X1, values)
+    assert table.starts.tolist() == [X1]
+    frame = lambda k: np.tile([10.0, 1.0, 0.0], (len(k), 1))  # noqa: E731
+    np.testing.assert_allclose(table.placed(table.rows(keys), frame), [[5.0, 1.0, 0.0]])
 
 
 def test_deferred_covariances_are_computed_once_when_read_or_settled():

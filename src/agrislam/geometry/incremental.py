@@ -14,7 +14,9 @@ window, every `window` steps the recent part of the graph is folded away:
 - an object keeps its position relative to a keyframe (with the marginal covariance of
   that relative position); its estimate moves with the keyframe, so a loop closure
   anywhere corrects the whole map. Seen again, it comes back into the graph tied to that
-  keyframe and gets its new measurements.
+  keyframe and gets its new measurements;
+- a pose keeps its place relative to both keyframes of its window and moves with each by
+  its share of the distance driven between them (`RetiredPoses`).
 
 `refine()` solves the whole recorded graph (the paper's batch solve, warm-started) and
 carries on from that solution; call it at the end of a survey, or when time allows.
@@ -47,8 +49,8 @@ from agrislam.geometry.isam_state import (
     Anchored,
     Entry,
     PendingUpdate,
-    Retired,
     RetiredObjects,
+    RetiredPoses,
     SlotTable,
     anchor_factor,
     per_distinct,
@@ -89,7 +91,7 @@ class IncrementalBackend(BackendBase):
         self._slots = SlotTable()
         self._guess: dict[int, np.ndarray] = {}  # nodes no factor has used yet
         self._retired_objects = RetiredObjects()
-        self._retired_poses = Retired(3)  # each pose relative to its keyframe
+        self._retired_poses = RetiredPoses()  # each pose between its window's keyframes
         self._keyframes: dict[str, list[int]] = {}  # robot -> its keyframes, oldest first
         self._last_seen: dict[int, tuple[str, int]] = {}  # object key -> (robot, step)
         self._cov_cache: dict[int, tuple[int, np.ndarray]] = {}  # key -> (step, covariance)
@@ -206,8 +208,7 @@ class IncrementalBackend(BackendBase):
         if (place := self._retired_objects.place(key)) is not None:
             return compose(self._estimate(place[0]), np.r_[place[1], 0.0])[:2]
         if (row := self._retired_poses.row(key)) is not None:
-            poses = self._retired_poses
-            return compose(self._estimate(int(poses.keyframes[row])), poses.local[row])
+            return self._retired_poses.placed(np.array([row]), self._frames)[0]
         if key in self._guess:
             return self._guess[key]
         raise KeyError(f"node {gtsam.DefaultKeyFormatter(key)} is not in the graph")
@@ -270,9 +271,11 @@ class IncrementalBackend(BackendBase):
     def _fold(self) -> None:
         """Keyframe each robot's latest pose; marginalise the rest of the window out (and
         the keyframes beyond `keyframes_kept`, what hangs on them moved onto the newest)."""
+        starts = {}  # robot -> the keyframe its window starts at
         for robot, chain in self.graph.robots.items():
             latest = chain.keys[-1]
             if latest not in self._permanent:
+                starts[robot] = self._keyframes[robot][-1]
                 self._permanent.add(latest)
                 self._keyframes[robot].append(latest)
         aged = self._aged_keyframes()
@@ -287,7 +290,7 @@ class IncrementalBackend(BackendBase):
                 for key in self._slots.keys(slot):
                     if not point.exists(key):
                         insert_value(point, key, self._estimate(key))
-            self._retire(window, graph, point)
+            self._retire(window, graph, point, starts)
             self._rebase(aged)
             marginal = self._marginal(graph, point, window)
             for key in marginal.keyVector():
@@ -335,18 +338,22 @@ class IncrementalBackend(BackendBase):
             self._isam.update(gtsam.NonlinearFactorGraph(), gtsam.Values(), params)
 
     def _retire(
-        self, window: set[int], graph: gtsam.NonlinearFactorGraph, point: gtsam.Values
+        self,
+        window: set[int],
+        graph: gtsam.NonlinearFactorGraph,
+        point: gtsam.Values,
+        starts: dict[str, int],
     ) -> None:
-        """Every window node keeps its place relative to a keyframe of its robot: poses
-        their relative pose, objects their relative position and its covariance given the
-        keyframe (from the window's factors and those among the nodes they touch)."""
+        """Every window node keeps its place relative to keyframes of its robot: poses
+        their relative poses to both ends of their window (`starts` to the newest), objects
+        their relative position and its covariance given the keyframe (from the window's
+        factors and those among the nodes they touch)."""
         half = (self._window_start + self._step) / 2
         anchored: dict[int, list[int]] = {}
+        driven: dict[str, list[int]] = {}
         for key in window:
             if key_kind(key) == POSE:
-                keyframe = self._keyframes[self.graph.robot_of(key)][-1]
-                rel = between(value_array(point, keyframe), value_array(point, key))
-                self._retired_poses.put(key, keyframe, rel)
+                driven.setdefault(self.graph.robot_of(key), []).append(key)
                 continue
             robot, step = self._last_seen.get(key, (next(iter(self._keyframes)), self._step))
             frames = self._keyframes[robot]
@@ -354,6 +361,13 @@ class IncrementalBackend(BackendBase):
             if not point.exists(keyframe):
                 keyframe = frames[-1]
             anchored.setdefault(keyframe, []).append(key)
+        for robot, keys in driven.items():
+            end = self._keyframes[robot][-1]
+            start = end if starts.get(robot, end) in window else starts.get(robot, end)
+            keys.sort()  # a robot's pose keys count up in the order driven
+            older = [k for k in keys if k < start]  # keyframes aged away: on the newest
+            self._retired_poses.put_window(older, end, end, point)
+            self._retired_poses.put_window(keys[len(older) :], start, end, point)
         blanket = [k for k in point.keys() if k not in window]  # noqa: SIM118
         # with the factors already among the blanket's nodes (odometry between keyframes,
         # row spacing): an object seen from two keyframes is known given either
@@ -445,7 +459,8 @@ class IncrementalBackend(BackendBase):
         if not self.window:
             self._slots.reset(Entry(f.keys, fid) for fid, f in self.graph.factors.items())
             return
-        self._relocate(solution)
+        self._retired_poses.relocate_at(solution)
+        self._retired_objects.relocate_at(solution)
 
     def _refine_folded(self) -> None:
         """A graph too large for one batch: Gauss-Newton on the keyframe graph the history
@@ -455,18 +470,6 @@ class IncrementalBackend(BackendBase):
         self._cov_cache.clear()
         self._folded_heading = {k: self._estimate(k)[2] for k in self._folded_heading}
         self.refines += 1
-
-    def _relocate(self, solution: gtsam.Values) -> None:
-        """Every retired node's place relative to its keyframe, taken from `solution`."""
-        poses, objects = self._retired_poses, self._retired_objects
-        frames = values_at(solution, poses.keyframes, 3)
-        poses.relocate(between(frames.T, values_at(solution, poses.keys, 3).T).T)
-        xy, z = values_at(solution, objects.keys, 2), np.empty((len(objects), 2))
-        frames = values_at(solution, objects.keyframes, 3)
-        for keyframe in np.unique(objects.keyframes):
-            rows = objects.keyframes == keyframe
-            z[rows] = to_robot_frame(frames[rows][0], xy[rows])
-        objects.relocate(z)
 
     def _refold(
         self, solution: gtsam.Values, fresh: gtsam.ISAM2, graph: gtsam.NonlinearFactorGraph
@@ -533,15 +536,6 @@ class IncrementalBackend(BackendBase):
         """(k, 3) current pose of each of `keyframes`, each distinct one read once."""
         return np.array(per_distinct(keyframes, self._estimate)).reshape(-1, 3)
 
-    def _placed(self, retired: Retired, rows: np.ndarray) -> np.ndarray:
-        """(k, dim) map-frame estimates of retired rows: keyframe pose (+) local, at once."""
-        if not len(rows):
-            return np.empty((0, retired.dim))
-        local = retired.local[rows]
-        if retired.dim == 2:
-            local = np.column_stack([local, np.zeros(len(local))])
-        return compose(self._frames(retired.keyframes[rows]).T, local.T).T[:, : retired.dim]
-
     def _split(self, object_ids: np.ndarray) -> tuple[np.ndarray, list[int]]:
         """The retired-object row of each object (-1: live) and the keys of the live ones."""
         keys = self.graph.require_objects(object_ids)
@@ -555,7 +549,7 @@ class IncrementalBackend(BackendBase):
         retired = rows >= 0
         out = np.empty((len(object_ids), 2))
         out[~retired] = np.array([self._estimate(k) for k in live]).reshape(-1, 2)
-        out[retired] = self._placed(self._retired_objects, rows[retired])
+        out[retired] = self._retired_objects.placed(rows[retired], self._frames)
         return out
 
     def trajectory(self, robot: str) -> tuple[np.ndarray, np.ndarray]:
@@ -566,7 +560,7 @@ class IncrementalBackend(BackendBase):
         poses = np.empty((len(chain.keys), 3))
         live = [k for k, r in zip(chain.keys, rows.tolist(), strict=True) if r < 0]
         poses[~retired] = np.array([self._estimate(k) for k in live]).reshape(-1, 3)
-        poses[retired] = self._placed(self._retired_poses, rows[retired])
+        poses[retired] = self._retired_poses.placed(rows[retired], self._frames)
         return np.array(chain.times), poses
 
     def object_covariances(self, object_ids: np.ndarray) -> np.ndarray:

@@ -21,9 +21,10 @@ import numpy as np
 from agrislam.geometry.batch import insert_value, value_array
 from agrislam.geometry.graph import POSE
 from agrislam.geometry.noise import gaussian, relative_to_range_bearing
-from agrislam.geometry.se2 import compose, rotation
+from agrislam.geometry.se2 import between, compose, rotation, wrap_angle
 
 Serialisable = TypeVar("Serialisable", gtsam.NonlinearFactorGraph, gtsam.Values)
+PoseLookup = Callable[[np.ndarray], np.ndarray]  # keyframe keys (k,) -> their poses (k, 3)
 
 
 @dataclass(slots=True)
@@ -317,21 +318,111 @@ class Retired:
     def rebase(self, keyframe: int, onto: int, relative: np.ndarray) -> None:
         """Every row on `keyframe` moves onto keyframe `onto`, where `keyframe` stands at
         pose `relative`: its place becomes relative (+) local (a covariance turns along)."""
-        rows = np.flatnonzero(self.keyframes == np.uint64(keyframe))
-        if not len(rows):
-            return
-        local = self._columns["local"][rows].T
-        if self.dim == 2:
-            local = np.vstack([local, np.zeros(len(rows))])
-        self._columns["local"][rows] = compose(relative, local)[: self.dim].T
+        rows = self._move_anchor("keyframes", "local", keyframe, onto, relative)
         if "cov" in self._columns:
             turn = rotation(relative[2])
             self._columns["cov"][rows] = turn @ self._columns["cov"][rows] @ turn.T
-        self._columns["keyframes"][rows] = onto
+
+    def _move_anchor(
+        self, anchors: str, places: str, keyframe: int, onto: int, relative: np.ndarray
+    ) -> np.ndarray:
+        """The rows whose column `anchors` is `keyframe` move onto `onto` (their `places`
+        composed onto `relative`); returns those rows."""
+        rows = np.flatnonzero(self._column(anchors) == np.uint64(keyframe))
+        local = self._columns[places][rows].T
+        if self.dim == 2:
+            local = np.vstack([local, np.zeros(len(rows))])
+        if len(rows):
+            self._columns[places][rows] = compose(relative, local)[: self.dim].T
+        self._columns[anchors][rows] = onto
+        return rows
 
     def relocate(self, local: np.ndarray) -> None:
         """Every row's new place relative to its keyframe (rows in order)."""
         self._columns["local"][: self._n] = local
+
+    def _as_pose(self, places: np.ndarray) -> np.ndarray:
+        """(3, k) places as poses (a position gets heading 0)."""
+        return places.T if self.dim == 3 else np.vstack([places.T, np.zeros(len(places))])
+
+    def _on(self, anchors: np.ndarray, places: np.ndarray, frame: PoseLookup) -> np.ndarray:
+        """(k, 3) map-frame poses of `places` on keyframes `anchors`."""
+        return compose(frame(anchors).T, self._as_pose(places)).T
+
+    def placed(self, rows: np.ndarray, frame: PoseLookup) -> np.ndarray:
+        """(k, dim) map-frame estimates of `rows`, `frame(keyframes)` giving the keyframes'
+        poses: keyframe (+) local, at once."""
+        return self._on(self.keyframes[rows], self.local[rows], frame)[:, : self.dim]
+
+    def _local_at(self, anchors: np.ndarray, solution: gtsam.Values) -> np.ndarray:
+        """(n, dim) every row's place relative to keyframes `anchors`, from `solution`."""
+        nodes = self._as_pose(values_at(solution, self.keys, self.dim))
+        return between(values_at(solution, anchors, 3).T, nodes)[: self.dim].T
+
+    def relocate_at(self, solution: gtsam.Values) -> None:
+        """Every row's place relative to its keyframe, taken from `solution`."""
+        self.relocate(self._local_at(self.keyframes, solution))
+
+
+class RetiredPoses(Retired):
+    """Retired poses, each held relative to both keyframes of its window: the one it retired
+    onto (`keyframes`, `local`) and the robot's keyframe before it (`starts`, `start_local`),
+    and placed between the two by `share`, its share of the distance driven from the start.
+    A correction that reaches one end of the window later then moves the poses near that end,
+    not the whole window swung about its newest keyframe (issue 13: a rigid tie put the
+    window's first poses of an RTK survey 0.044 m off against 0.018 m at the keyframe)."""
+
+    def __init__(self) -> None:
+        super().__init__(3)
+        self._columns.update(
+            starts=np.zeros(0, dtype=np.uint64), start_local=np.zeros((0, 3)), share=np.zeros(0)
+        )
+
+    @property
+    def starts(self) -> np.ndarray:
+        return self._column("starts")
+
+    def put_window(self, keys: list[int], start: int, end: int, point: gtsam.Values) -> None:
+        """A window's poses `keys`, in the order driven, between keyframes `start` and `end`
+        at the estimates `point` (`start` absent from it: held by `end` alone)."""
+        if not point.exists(start):
+            start = end
+        poses = values_at(point, np.array([start, *keys, end], dtype=np.uint64), 3)
+        travelled = np.cumsum(np.linalg.norm(np.diff(poses[:, :2], axis=0), axis=1))
+        if start == end:
+            share = np.ones(len(keys))
+        elif travelled[-1] > 0.0:
+            share = travelled[:-1] / travelled[-1]
+        else:  # the robot stood still: by the order of the poses
+            share = np.arange(1, len(keys) + 1) / (len(keys) + 1)
+        for key, pose, w in zip(keys, poses[1:-1], share.tolist(), strict=True):
+            self.put(
+                key,
+                end,
+                between(poses[-1], pose),
+                starts=start,
+                start_local=between(poses[0], pose),
+                share=w,
+            )
+
+    def placed(self, rows: np.ndarray, frame: PoseLookup) -> np.ndarray:
+        """(k, 3) map-frame poses of `rows`, `frame(keyframes)` giving keyframes' poses:
+        positions blended by share, headings turned by share from the start's."""
+        share = self._column("share")[rows]
+        end = super().placed(rows, frame)
+        start = self._on(self.starts[rows], self._column("start_local")[rows], frame)
+        xy = share[:, None] * end[:, :2] + (1.0 - share[:, None]) * start[:, :2]
+        theta = wrap_angle(start[:, 2] + share * wrap_angle(end[:, 2] - start[:, 2]))
+        return np.column_stack([xy, theta])
+
+    def rebase(self, keyframe: int, onto: int, relative: np.ndarray) -> None:
+        super().rebase(keyframe, onto, relative)
+        self._move_anchor("starts", "start_local", keyframe, onto, relative)
+
+    def relocate_at(self, solution: gtsam.Values) -> None:
+        """Every row's places relative to both its keyframes, taken from `solution`."""
+        super().relocate_at(solution)
+        self._columns["start_local"][: self._n] = self._local_at(self.starts, solution)
 
 
 @dataclass(slots=True, eq=False)  # hashed by identity
