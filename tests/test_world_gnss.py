@@ -46,3 +46,21 @@ def test_without_an_anchor_the_first_good_fix_is_one() -> None:
     result = run_survey(records, world)
     assert world.anchor is not None and world.anchor.yaw_deg == 0.0
     assert result.gnss["used"] > 0
+
+
+def test_a_survey_with_fixes_maps_without_the_row_prior_unless_configured() -> None:
+    # issue 13: on a 450 m row a row line fitted 0.1 deg off lies 0.8 m from the fixes at
+    # its end; the graph twisted the robot's heading by degrees to reconcile them
+    records = survey(True)
+    by_default = WorldModel()
+    run_survey(records, by_default)
+    assert by_default.rows is None
+    configured = WorldModel(AgrislamConfig.model_validate({"rows": {"enabled": True}}))
+    run_survey(records, configured)
+    assert configured.rows is not None and configured.rows.angle is not None
+    without_fixes = WorldModel()
+    run_survey(survey(False), without_fixes)
+    assert without_fixes.rows is not None and without_fixes.rows.angle is not None
+    no_fix_used = WorldModel(AgrislamConfig.model_validate({"gnss": {"enabled": False}}))
+    run_survey(records, no_fix_used)
+    assert no_fix_used.rows is not None
