@@ -192,6 +192,12 @@ def test_resume_refuses_a_checkpoint_of_another_log_or_config(log, tmp_path):
     with pytest.raises(ResumeError, match="the file is shorter than the"):
         _run(other, tmp_path, config(), resume=True)
     assert read_checkpoint(tmp_path / "map.sqlite") is not None  # refused: nothing touched
+    # a checkpoint of an older version (its state is of another shape) is refused, not misread
+    with sqlite3.connect(tmp_path / "map.sqlite") as db:
+        older = b"agrislam-checkpoint 1"
+        db.execute("UPDATE checkpoint SET value = ? WHERE key = 'format'", (older,))
+    with pytest.raises(ResumeError, match="a checkpoint of another version"):
+        _run(log, tmp_path, config(), resume=True)
 
 
 def test_resume_without_a_checkpoint_starts_from_the_first_record(log, uninterrupted, tmp_path):

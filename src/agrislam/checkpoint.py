@@ -43,7 +43,9 @@ from agrislam.config import AgrislamConfig, CheckpointConfig
 from agrislam.sinks.sqlite import read_checkpoint, write_checkpoint
 from agrislam.world import WorldModel
 
-FORMAT = b"agrislam-checkpoint 1"
+# raised whenever the state changes shape, so that an older checkpoint is refused, not misread
+# (2: folded poses held between both keyframes of their window, geometry/isam_state.py)
+FORMAT = b"agrislam-checkpoint 2"
 # the modules a checkpoint's objects may come from
 TRUSTED_MODULES = {"agrislam", "numpy", "collections", "copyreg", "builtins", "pydantic"}
 TRUSTED_MODULES |= {"pydantic_core", "scipy"}
