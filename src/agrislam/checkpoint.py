@@ -179,11 +179,22 @@ class Checkpoints:
         self, path: Path, input_: InputFingerprint, config: str, every: CheckpointConfig
     ) -> None:
         self.path, self.input, self.config, self.every = Path(path), input_, config, every
-        self.last: dict[str, bytes] | None = None  # the latest checkpoint's entries
+        self._written = False  # a checkpoint of this run is in `path` (taken or resumed)
         self.taken = 0
         self.seconds = 0.0
         self.issues: Counter[str] = Counter()  # checkpoints that could not be written, why
         self._next: float = every.every_frames  # frames at which the next one is due
+
+    @property
+    def last(self) -> dict[str, bytes] | None:
+        """The latest checkpoint's entries (None: none was written), read back from `path`
+        when asked: held in memory it was one more copy of the whole state (issue 14)."""
+        if not self._written:
+            return None
+        try:
+            return read_checkpoint(self.path)
+        except (OSError, sqlite3.Error):
+            return None
 
     def due(self, n_frames: int) -> bool:
         return self.every.every_frames > 0 and n_frames >= self._next
@@ -217,7 +228,7 @@ class Checkpoints:
         }
         try:
             write_checkpoint(self.path, entries, snapshot)
-            self.last = entries
+            self._written = True
             self.taken += 1
         except (OSError, sqlite3.Error) as err:
             self.issues[f"checkpoint not written: {type(err).__name__}: {err}"] += 1
@@ -261,7 +272,7 @@ class Checkpoints:
                 "config file, its bag:/sim: sections or --strict/--lenient differ); resume "
                 "with the same, or use --force to start over"
             )
-        self.last = entries
+        self._written = True
         state = load_state(entries["state"])
         self._after(state.n_frames, entries["state"])
         return state
