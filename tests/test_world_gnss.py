@@ -12,7 +12,7 @@ import pytest
 
 from agrislam.config import AgrislamConfig
 from agrislam.pipeline import run_survey
-from agrislam.records import Meta
+from agrislam.records import GnssFix, Meta
 from agrislam.sim.config import SimConfig
 from agrislam.sim.simulator import Simulator
 from agrislam.world import WorldModel
@@ -64,3 +64,9 @@ def test_a_survey_with_fixes_maps_without_the_row_prior_unless_configured() -> N
     no_fix_used = WorldModel(AgrislamConfig.model_validate({"gnss": {"enabled": False}}))
     run_survey(records, no_fix_used)
     assert no_fix_used.rows is not None
+    # rows fitted before the first fix are in the graph (and its folded history): they stay
+    late = [r for r in records if not (isinstance(r, GnssFix) and r.t < 20.0)]
+    fixed_late = WorldModel()
+    result = run_survey(late, fixed_late)
+    assert result.gnss["used"] > 0
+    assert fixed_late.rows is not None and fixed_late.rows.angle is not None
