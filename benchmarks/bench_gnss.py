@@ -87,7 +87,7 @@ def main() -> None:
         "DR RMS (m)",
         "mapped",
         "fixes used / rejected",
-        "step ms p50",
+        "step ms p50 / max",
         "vs no GNSS",
         "GNSS stage",
         "wall s",
@@ -129,13 +129,15 @@ def main() -> None:
                     f"{s['dr_rms']:.2f}",
                     f"{s['mapped']:.1%}",
                     used,
-                    f"{ms:.1f}",
+                    f"{ms:.1f} / {np.max(steps) * 1e3:.0f}",
                     f"{s['step_ratio']:.2f}",
                     f"{share:.1%}",
                     f"{result.wall_seconds:.0f}",
                 ]
             )
             console.print("  ".join(row), soft_wrap=True)  # as each run ends
+            if result.issues:  # what the run isolated, refused or could not do
+                console.print(f"    issues: {result.issues}", soft_wrap=True)
         for row in reversed(rows):
             table.add_row(*row)
     console.print(table)
