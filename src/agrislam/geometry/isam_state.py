@@ -5,8 +5,9 @@
   node entered since the last update is only here: its estimate is its initial value.
 - `SlotTable`: what each live iSAM2 factor slot holds (a factor of the record, a retired
   object's anchor, or history folded onto keyframes and rows) and the keys it touches.
-- `Retired` / `RetiredObjects`: nodes folded out of iSAM2, each held relative to a
-  keyframe that stays in it, as rows of arrays, so that many are placed at once.
+- `Retired` / `RetiredObjects` / `RetiredPoses`: nodes folded out of iSAM2, each held
+  relative to a keyframe that stays in it (a pose: to both keyframes of its window), as
+  rows of arrays, so that many are placed at once.
 """
 
 from __future__ import annotations
