@@ -205,10 +205,9 @@ class IncrementalBackend(BackendBase):
             if key_kind(key) == POSE:
                 return pose_array(self._isam.calculateEstimatePose2(key))
             return np.asarray(self._isam.calculateEstimatePoint2(key), dtype=float).ravel()
-        if (place := self._retired_objects.place(key)) is not None:
-            return compose(self._estimate(place[0]), np.r_[place[1], 0.0])[:2]
-        if (row := self._retired_poses.row(key)) is not None:
-            return self._retired_poses.placed(np.array([row]), self._frames)[0]
+        for retired in (self._retired_objects, self._retired_poses):
+            if (row := retired.row(key)) is not None:
+                return retired.placed(np.array([row]), self._frames)[0]
         if key in self._guess:
             return self._guess[key]
         raise KeyError(f"node {gtsam.DefaultKeyFormatter(key)} is not in the graph")
@@ -363,7 +362,8 @@ class IncrementalBackend(BackendBase):
             anchored.setdefault(keyframe, []).append(key)
         for robot, keys in driven.items():
             end = self._keyframes[robot][-1]
-            start = end if starts.get(robot, end) in window else starts.get(robot, end)
+            start = starts.get(robot, end)
+            start = end if start in window else start  # aged away in this fold
             keys.sort()  # a robot's pose keys count up in the order driven
             older = [k for k in keys if k < start]  # keyframes aged away: on the newest
             self._retired_poses.put_window(older, end, end, point)

@@ -330,10 +330,8 @@ class Retired:
         """The rows whose column `anchors` is `keyframe` move onto `onto` (their `places`
         composed onto `relative`); returns those rows."""
         rows = np.flatnonzero(self._column(anchors) == np.uint64(keyframe))
-        local = self._columns[places][rows].T
-        if self.dim == 2:
-            local = np.vstack([local, np.zeros(len(rows))])
         if len(rows):
+            local = self._as_pose(self._columns[places][rows])
             self._columns[places][rows] = compose(relative, local)[: self.dim].T
         self._columns[anchors][rows] = onto
         return rows
@@ -494,13 +492,6 @@ class RetiredObjects(Retired):
             for key, cov in zip(job.keys, job.compute(), strict=True):
                 if self._waiting.pop(key, None) is job and (row := self._row.get(key)) is not None:
                     self._columns["cov"][row] = cov
-
-    def place(self, key: int) -> tuple[int, np.ndarray] | None:
-        """The retired object's keyframe and position z on it, or None if not retired."""
-        row = self._row.get(key)
-        if row is None:
-            return None
-        return int(self._columns["keyframes"][row]), self._columns["local"][row]
 
     def anchor(self, key: int) -> Anchored | None:
         """A copy of the retired object's anchor, or None if it is not retired."""
