@@ -540,3 +540,30 @@ def test_object_keys_are_gtsams_symbols_and_unknown_ids_are_named():
     assert graph.require_objects(np.array([7])) == [object_key(7)]
     with pytest.raises(KeyError, match="object 8 "):
         graph.require_objects(np.array([7, 8]))
+
+
+@pytest.mark.parametrize("robots", [1, 3])
+def test_a_marginal_read_serves_each_robot_covariance_reuse_steps_steps(robots):
+    """`slam.covariance_reuse_steps` counts each robot's steps: robots share the step
+    count, and with three a read per that many shared steps would be one every other
+    frame of each, a cost growing with the robots (issue 11)."""
+    g = make_backend(SlamConfig(window=0, covariance_reuse_steps=2), RowsConfig())
+    xy = np.array([2.0, 2.0])
+    g.add_object(0, xy)
+    starts = {f"r{n}": np.array([0.0, float(n), 0.0]) for n in range(robots)}
+    for name, start in starts.items():
+        g.add_robot(name, start, TIGHT)
+        rel = observe_from(start, xy)
+        g.add_observation(name, 0, RelativePosition(rel, detection_covariance(rel, 0.05, 0.01)))
+    g.update()
+    key = g.graph.require_objects(np.array([0]))[0]
+    first = g.object_covariances(np.array([0]))
+    read_at = g._cov_cache[key][0]
+    steps = 0
+    while g._cov_cache[key][0] == read_at:  # the robots drive on without seeing it
+        name = list(starts)[steps % robots]
+        g.add_odometry(name, 1.0 + steps, np.array([0.1, 0.0, 0.0]), np.diag([1e-4, 1e-4, 1e-5]))
+        g.update()
+        steps += 1
+        np.testing.assert_allclose(g.object_covariances(np.array([0])), first, rtol=0.5)
+    assert steps == 2 * robots

@@ -526,9 +526,12 @@ class IncrementalBackend(BackendBase):
 
     def _marginal_covariance(self, key: int) -> np.ndarray:
         """A node's marginal covariance, read again from iSAM2 (a Bayes-tree traversal)
-        once it is `slam.covariance_reuse_steps` steps old or a new factor touched it."""
+        once each robot has taken `slam.covariance_reuse_steps` steps since it was read
+        (robots share the step count: five reading every ten steps would each read every
+        other frame, a cost growing with the robots, issue 11) or a new factor touched it."""
         cached = self._cov_cache.get(key)
-        if cached is None or self._step - cached[0] >= self.slam.covariance_reuse_steps:
+        reuse = self.slam.covariance_reuse_steps * max(len(self.graph.robots), 1)
+        if cached is None or self._step - cached[0] >= reuse:
             cached = self._cov_cache[key] = (self._step, self._isam.marginalCovariance(key))
         return cached[1]
 
