@@ -530,6 +530,27 @@ def test_a_graph_above_the_batch_limit_refines_its_folded_keyframe_graph(small_s
     assert np.sqrt(np.mean(np.square(gap))) < 0.05
 
 
+def test_isam2_is_rebuilt_when_the_slots_of_factors_it_let_go_pile_up(small_survey, monkeypatch):
+    """iSAM2 keeps a slot for every factor it ever held: past slack x live + floor a fold
+    rebuilds it from the live factors (issue 14), and the map is the same."""
+    import agrislam.geometry.incremental as incremental
+
+    b, survey = small_survey
+    maps, slots = {}, {}
+    for name, floor in {"kept": 10**9, "rebuilt": 0}.items():
+        monkeypatch.setattr(incremental, "SLOTS_FLOOR", floor)
+        monkeypatch.setattr(incremental, "SLOTS_SLACK", 2)
+        g = make_backend(SlamConfig(window=10), RowsConfig())
+        _, ids, complete, _ = b.drive(g, survey, None, float("inf"))
+        assert complete and g.rolls >= len(survey.steps) // 10
+        slots[name] = g._isam.getFactorsUnsafe().size()
+        assert len(g._slots) == g._isam.getFactorsUnsafe().nrFactors()  # the table follows
+        maps[name] = b.positions(g, ids)
+    assert slots["rebuilt"] < slots["kept"] / 3
+    gap = [np.linalg.norm(maps["rebuilt"][k] - maps["kept"][k]) for k in maps["kept"]]
+    assert max(gap) < 1e-3
+
+
 def test_object_keys_are_gtsams_symbols_and_unknown_ids_are_named():
     from agrislam.geometry.graph import SurveyGraph, object_key, object_keys
 

@@ -61,8 +61,8 @@ from agrislam.geometry.isam_state import (
 )
 from agrislam.geometry.se2 import between, compose, point_jacobian, rotation, to_robot_frame
 
-# Gauss-Newton iterations on the window before it is folded away
-FOLD_ITERATIONS = 2
+FOLD_ITERATIONS = 2  # Gauss-Newton iterations on the window before it is folded away
+SLOTS_SLACK, SLOTS_FLOOR = 8, 8000  # iSAM2 rebuilt when its slots pass slack x live + floor
 
 
 def isam2(slam: SlamConfig) -> gtsam.ISAM2:
@@ -255,17 +255,18 @@ class IncrementalBackend(BackendBase):
         key = indeterminate_key(err)
         if key is None or key not in self._live:  # (entered nodes are live already)
             raise err
-        live, broken, self._isam = self._slots.ordered(), self._isam, isam2(self.slam)
-        rebuilt_isam2(broken, [slot for slot, _ in live], self._isam)
-        self._pending.renumber({slot: n for n, (slot, _) in enumerate(live)})
-        self._slots.reset(entry for _, entry in live)
-        self._cov_cache.clear()  # raises below only if the update fails again
+        self._rebuild()  # raises below only if the update fails again
         insert_value(point := gtsam.Values(), key, self._estimate(key))
         held = conditioned(gtsam.NonlinearFactorGraph(), point, None, [key])
         held.push_back(extra if extra is not None else gtsam.NonlinearFactorGraph())
         kind = {POSE: "pose", ROW: "row"}.get(key_kind(key), "object")
         self.issues[f"{kind} held by a weak prior: indeterminate in an iSAM2 update"] += 1
         return self._pending.flush(self._isam, held)
+
+    def _rebuild(self) -> None:
+        """A fresh iSAM2 of the live factors at the same linearisation point."""
+        self._isam = rebuilt_isam2(self._isam, self._slots, self._pending, isam2(self.slam))
+        self._cov_cache.clear()
 
     def _fold(self) -> None:
         """Keyframe each robot's latest pose; marginalise the rest of the window out (and
@@ -299,6 +300,8 @@ class IncrementalBackend(BackendBase):
             self._pending.remove(slots)
             self._live -= window
             self._solve_pending(marginal)
+            if self._isam.getFactorsUnsafe().size() > SLOTS_SLACK * len(self._slots) + SLOTS_FLOOR:
+                self._rebuild()  # iSAM2 keeps a slot per factor it ever held (issue 14)
         self._window_start = self._step
         self.rolls += 1
 

@@ -556,14 +556,21 @@ def serialised_isam2(isam: gtsam.ISAM2, slots: list[int]) -> tuple[str, str]:
     return slot_factors(isam, slots).serialize(), isam.getLinearizationPoint().serialize()
 
 
-def rebuilt_isam2(isam: gtsam.ISAM2, slots: list[int], fresh: gtsam.ISAM2) -> None:
-    """`fresh` given `isam`'s factors in `slots` (they take slots 0, 1, ...) at its
-    linearisation point: what an update that threw left half done, made whole again."""
-    graph = slot_factors(isam, slots)
+def rebuilt_isam2(
+    isam: gtsam.ISAM2, slots: SlotTable, pending: PendingUpdate, fresh: gtsam.ISAM2
+) -> gtsam.ISAM2:
+    """`fresh` given `isam`'s live factors (they take slots 0, 1, ..., and `slots` and
+    `pending` are renumbered) at its linearisation point: what an update that threw left
+    half done made whole again, or the slots of the factors it ever held let go."""
+    live = slots.ordered()
+    graph = slot_factors(isam, [slot for slot, _ in live])
     point, values = isam.getLinearizationPoint(), gtsam.Values()
     for key in graph.keyVector():
         insert_value(values, key, value_array(point, key))
     fresh.update(graph, values)
+    pending.renumber({slot: n for n, (slot, _) in enumerate(live)})
+    slots.reset(entry for _, entry in live)
+    return fresh
 
 
 def restore_isam2(isam: gtsam.ISAM2, saved: tuple[str, str]) -> None:
