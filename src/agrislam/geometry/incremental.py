@@ -53,6 +53,7 @@ from agrislam.geometry.isam_state import (
     RetiredPoses,
     SlotTable,
     anchor_factor,
+    isam2,
     per_distinct,
     rebuilt_isam2,
     restore_isam2,
@@ -63,14 +64,6 @@ from agrislam.geometry.se2 import between, compose, point_jacobian, rotation, to
 
 FOLD_ITERATIONS = 2  # Gauss-Newton iterations on the window before it is folded away
 SLOTS_SLACK, SLOTS_FLOOR = 8, 8000  # iSAM2 rebuilt when its slots pass slack x live + floor
-
-
-def isam2(slam: SlamConfig) -> gtsam.ISAM2:
-    params = gtsam.ISAM2Params()
-    params.setRelinearizeThreshold(slam.relinearize_threshold)
-    params.relinearizeSkip = slam.relinearize_skip
-    params.setFactorization(slam.factorization.upper())
-    return gtsam.ISAM2(params)
 
 
 class IncrementalBackend(BackendBase):
@@ -217,8 +210,12 @@ class IncrementalBackend(BackendBase):
         """One iSAM2 step with this step's factors; every `window` steps, a keyframe."""
         self._solve_pending()
         self._step += 1
-        if not self.window or self._step - self._window_start < self.window:
+        since = self._step - self._window_start
+        if not self.window or since < self.window:
             self._retired_objects.pace()  # a fold's deferred covariances, a part a step
+            slots = self._isam.getFactorsUnsafe().size() if since == self.window // 2 else 0
+            if slots > SLOTS_SLACK * len(self._slots) + SLOTS_FLOOR:  # half way between folds
+                self._rebuild()  # iSAM2 keeps a slot per factor it ever held (issue 14)
         else:
             self._fold()
             if self.slam.refine_turn_deg and self._turned() > math.radians(
@@ -300,8 +297,6 @@ class IncrementalBackend(BackendBase):
             self._pending.remove(slots)
             self._live -= window
             self._solve_pending(marginal)
-            if self._isam.getFactorsUnsafe().size() > SLOTS_SLACK * len(self._slots) + SLOTS_FLOOR:
-                self._rebuild()  # iSAM2 keeps a slot per factor it ever held (issue 14)
         self._window_start = self._step
         self.rolls += 1
 

@@ -19,6 +19,7 @@ from typing import TypeVar
 import gtsam
 import numpy as np
 
+from agrislam.config import SlamConfig
 from agrislam.geometry.batch import insert_value, value_array
 from agrislam.geometry.graph import POSE
 from agrislam.geometry.noise import gaussian, relative_to_range_bearing
@@ -554,6 +555,14 @@ def serialised_isam2(isam: gtsam.ISAM2, slots: list[int]) -> tuple[str, str]:
     """iSAM2's factors in `slots` (in that order) and its linearisation point, in GTSAM's
     serialisation (17 significant digits: every double comes back to the last bit)."""
     return slot_factors(isam, slots).serialize(), isam.getLinearizationPoint().serialize()
+
+
+def isam2(slam: SlamConfig) -> gtsam.ISAM2:
+    params = gtsam.ISAM2Params()
+    params.setRelinearizeThreshold(slam.relinearize_threshold)
+    params.relinearizeSkip = slam.relinearize_skip
+    params.setFactorization(slam.factorization.upper())
+    return gtsam.ISAM2(params)
 
 
 def rebuilt_isam2(
