@@ -558,6 +558,7 @@ def serialised_isam2(isam: gtsam.ISAM2, slots: list[int]) -> tuple[str, str]:
 
 
 def isam2(slam: SlamConfig) -> gtsam.ISAM2:
+    """An empty iSAM2 with the configured relinearisation and factorisation."""
     params = gtsam.ISAM2Params()
     params.setRelinearizeThreshold(slam.relinearize_threshold)
     params.relinearizeSkip = slam.relinearize_skip
