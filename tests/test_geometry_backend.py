@@ -531,8 +531,9 @@ def test_a_graph_above_the_batch_limit_refines_its_folded_keyframe_graph(small_s
 
 
 def test_isam2_is_rebuilt_when_the_slots_of_factors_it_let_go_pile_up(small_survey, monkeypatch):
-    """iSAM2 keeps a slot for every factor it ever held: past slack x live + floor a fold
-    rebuilds it from the live factors (issue 14), and the map is the same."""
+    """iSAM2 keeps a slot for every factor it ever held: past slack x live + floor it is
+    rebuilt from the live factors half way between folds (issue 14), and the map is the
+    same."""
     import agrislam.geometry.incremental as incremental
 
     b, survey = small_survey

@@ -213,9 +213,8 @@ class IncrementalBackend(BackendBase):
         since = self._step - self._window_start
         if not self.window or since < self.window:
             self._retired_objects.pace()  # a fold's deferred covariances, a part a step
-            slots = self._isam.getFactorsUnsafe().size() if since == self.window // 2 else 0
-            if slots > SLOTS_SLACK * len(self._slots) + SLOTS_FLOOR:  # half way between folds
-                self._rebuild()  # iSAM2 keeps a slot per factor it ever held (issue 14)
+            if since == self.window // 2 and self._slots_piled_up():  # half way between folds
+                self._rebuild()
         else:
             self._fold()
             if self.slam.refine_turn_deg and self._turned() > math.radians(
@@ -259,6 +258,11 @@ class IncrementalBackend(BackendBase):
         kind = {POSE: "pose", ROW: "row"}.get(key_kind(key), "object")
         self.issues[f"{kind} held by a weak prior: indeterminate in an iSAM2 update"] += 1
         return self._pending.flush(self._isam, held)
+
+    def _slots_piled_up(self) -> bool:
+        """iSAM2 keeps a slot for every factor it ever held (issue 14): past slack x live
+        + floor, a rebuild lets them go."""
+        return self._isam.getFactorsUnsafe().size() > SLOTS_SLACK * len(self._slots) + SLOTS_FLOOR
 
     def _rebuild(self) -> None:
         """A fresh iSAM2 of the live factors at the same linearisation point."""
