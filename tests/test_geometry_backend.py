@@ -271,7 +271,7 @@ def test_keyframes_stay_close_to_batch_and_refine_is_batch(small_survey):
     assert err["keyframes"] < 1.1 * err["batch"]
 
 
-def test_keyframes_beyond_the_kept_ones_fold_away_and_their_anchors_move_on(small_survey):
+def test_keyframes_beyond_the_kept_ones_fold_away_and_hold_what_hangs_on_them(small_survey):
     b, survey = small_survey
     batch = make_backend(SlamConfig(backend="batch"), RowsConfig())
     _, ids, _, _ = b.drive(batch, survey, None, float("inf"))
@@ -281,10 +281,13 @@ def test_keyframes_beyond_the_kept_ones_fold_away_and_their_anchors_move_on(smal
     for frames in g._keyframes.values():  # the first pose and the newest two
         assert len(frames) <= 3
     anchors = np.concatenate([g._retired_objects.keyframes, g._retired_poses.keyframes])
-    assert set(anchors.tolist()) <= g._live  # everything hangs on a keyframe still there
+    frozen = {k for k in anchors.tolist() if k in g._frozen}
+    assert frozen and set(anchors.tolist()) - frozen <= g._live  # on a keyframe, live or held
+    assert not frozen & g._live
     online, exact = b.positions(g, ids), b.positions(batch, ids)
     gap = [np.linalg.norm(online[k] - exact[k]) for k in ids]
-    assert np.sqrt(np.mean(np.square(gap))) < 0.1
+    # moved onto the newest keyframe instead, they swung with its heading: 0.024 m
+    assert np.sqrt(np.mean(np.square(gap))) < 0.015
     g.refine()  # the whole record is kept: the batch solution again
     refined = b.positions(g, ids)
     assert max(np.linalg.norm(refined[k] - exact[k]) for k in ids) < 1e-3

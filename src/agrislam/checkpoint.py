@@ -10,7 +10,7 @@ percent of mapping it) and maps on from the saved state.
 The state is saved with Python's pickle protocol, which is also how each part says what it
 holds: plain attributes (numpy arrays, dicts, dataclasses, pydantic models) are saved as they
 are; a part that holds what pickle cannot take implements `__getstate__`/`__setstate__`
-(the GTSAM back ends: `geometry/incremental.py`, `geometry/batch.py`, `geometry/isam_state.py`;
+(the GTSAM back ends: `geometry/incremental.py`, `geometry/batch.py`, `geometry/retired.py`;
 the survey graph saves its factors as columns, for speed). New state is saved with no
 change here; `tests/test_checkpoint.py` pickles a world after a survey and fails on any part
 that cannot be.
@@ -44,8 +44,9 @@ from agrislam.sinks.sqlite import read_checkpoint, write_checkpoint
 from agrislam.world import WorldModel
 
 # raised whenever the state changes shape, so that an older checkpoint is refused, not misread
-# (2: folded poses held between both keyframes of their window, geometry/isam_state.py)
-FORMAT = b"agrislam-checkpoint 2"
+# (2: folded poses held between both keyframes of their window, geometry/isam_state.py;
+# 3: retired nodes in geometry/retired.py, frozen keyframes)
+FORMAT = b"agrislam-checkpoint 3"
 # the modules a checkpoint's objects may come from
 TRUSTED_MODULES = {"agrislam", "numpy", "collections", "copyreg", "builtins", "pydantic"}
 TRUSTED_MODULES |= {"pydantic_core", "scipy"}

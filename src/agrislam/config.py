@@ -399,8 +399,8 @@ class SlamConfig(_Strict):
         0,
         ge=0,
         description="keyframes each robot keeps in the graph; older ones are folded away "
-        "like a window's poses (what hangs on them moves onto the newest), so the graph "
-        "stays bounded however long the survey; 0 = every keyframe stays",
+        "and held where they stand, with what hangs on them, so the graph stays bounded "
+        "however long the survey; 0 = every keyframe stays",
     )
     covariance_reuse_steps: int = Field(
         10,

@@ -52,6 +52,15 @@ def insert_value(values: gtsam.Values, key: int, value: np.ndarray) -> None:
         values.insert(key, np.asarray(value, dtype=float))
 
 
+def values_at(values: gtsam.Values, keys: np.ndarray, dim: int) -> np.ndarray:
+    """(k, dim) the values of `keys` at once: poses (dim 3, POSE keys) or points (dim 2)."""
+    pose = ord(POSE)
+    stored = np.array(values.keys(), dtype=np.uint64)
+    stored = stored[(stored >> np.uint64(56) == pose) == (dim == 3)]
+    table = (gtsam.utilities.extractPose2 if dim == 3 else gtsam.utilities.extractPoint2)(values)
+    return table.reshape(-1, dim)[np.searchsorted(stored, keys)]
+
+
 class BatchBackend(BackendBase):
     """Whole-graph optimisation every step (the paper's g2o LM/Dogleg, on GTSAM)."""
 

@@ -7,7 +7,8 @@ field, so a step costs more as the rows get longer (benchmarks/bench_geometry.py
 window, every `window` steps the recent part of the graph is folded away:
 
 - each robot's latest pose becomes a *keyframe*; keyframes and row nodes stay in the
-  graph for good;
+  graph (past `slam.keyframes_kept` per robot, a keyframe is folded away too and held
+  where it stands: `FrozenKeyframes`);
 - every other pose and object of the window is marginalised out of the window's
   factors, exactly at the current linearisation point: what they said about the
   keyframes and rows they touched becomes one dense factor between those;
@@ -33,7 +34,7 @@ import numpy as np
 
 from agrislam.config import RowsConfig, SlamConfig
 from agrislam.geometry.base import BackendBase, pose_array
-from agrislam.geometry.batch import insert_value, solve, value_array
+from agrislam.geometry.batch import insert_value, solve, value_array, values_at
 from agrislam.geometry.conditioning import (
     FREE_SIGMA,
     components,
@@ -46,21 +47,17 @@ from agrislam.geometry.conditioning import (
 from agrislam.geometry.drift import adjoint
 from agrislam.geometry.graph import POSE, ROW, SurveyGraph, key_index, key_kind, make_factor
 from agrislam.geometry.isam_state import (
-    Anchored,
     Entry,
     PendingUpdate,
-    RetiredObjects,
-    RetiredPoses,
     SlotTable,
-    anchor_factor,
     isam2,
     per_distinct,
     rebuilt_isam2,
     restore_isam2,
     serialised_isam2,
-    values_at,
 )
-from agrislam.geometry.se2 import between, compose, point_jacobian, rotation, to_robot_frame
+from agrislam.geometry.retired import Anchored, FrozenKeyframes, RetiredObjects, RetiredPoses
+from agrislam.geometry.se2 import between, compose, pose_uncertainty_at, rotation, to_robot_frame
 
 FOLD_ITERATIONS = 2  # Gauss-Newton iterations on the window before it is folded away
 SLOTS_SLACK, SLOTS_FLOOR = 8, 8000  # iSAM2 rebuilt when its slots pass slack x live + floor
@@ -91,6 +88,7 @@ class IncrementalBackend(BackendBase):
         self._step = 0
         self._window_start = 0
         self._folded_heading: dict[int, float] = {}  # keyframe -> heading when folded onto
+        self._frozen = FrozenKeyframes()  # aged past `keyframes_kept`
         self._increments: dict[str, tuple[np.ndarray, np.ndarray]] = {}  # latest odometry
         self.rolls = 0
 
@@ -148,7 +146,8 @@ class IncrementalBackend(BackendBase):
         self._live.add(key)
 
     def _push_anchor(self, key: int, anchor: Anchored) -> None:
-        self._pending.add(anchor_factor(anchor, key), Entry((anchor.keyframe, key), anchor=anchor))
+        factor = self._frozen.anchor_factor(anchor, key)
+        self._pending.add(factor, Entry(tuple(factor.keys()), anchor=anchor))
 
     def _add(self, fid: int) -> None:
         factor = self.graph.factors[fid]
@@ -198,6 +197,8 @@ class IncrementalBackend(BackendBase):
             if key_kind(key) == POSE:
                 return pose_array(self._isam.calculateEstimatePose2(key))
             return np.asarray(self._isam.calculateEstimatePoint2(key), dtype=float).ravel()
+        if (frozen := self._frozen.pose(key)) is not None:
+            return frozen
         for retired in (self._retired_objects, self._retired_poses):
             if (row := retired.row(key)) is not None:
                 return retired.placed(np.array([row]), self._frames)[0]
@@ -271,7 +272,7 @@ class IncrementalBackend(BackendBase):
 
     def _fold(self) -> None:
         """Keyframe each robot's latest pose; marginalise the rest of the window out (and
-        the keyframes beyond `keyframes_kept`, what hangs on them moved onto the newest)."""
+        the keyframes beyond `keyframes_kept`, frozen where they stand)."""
         starts = {}  # robot -> the keyframe its window starts at
         for robot, chain in self.graph.robots.items():
             latest = chain.keys[-1]
@@ -283,6 +284,7 @@ class IncrementalBackend(BackendBase):
         window = (self._live - self._permanent) | aged
         if window:
             self._converge()
+            self._freeze(aged)
             slots = self._slots.touching(window)
             factors = self._isam.getFactorsUnsafe()
             graph, point = gtsam.NonlinearFactorGraph(), gtsam.Values()
@@ -292,7 +294,6 @@ class IncrementalBackend(BackendBase):
                     if not point.exists(key):
                         insert_value(point, key, self._estimate(key))
             self._retire(window, graph, point, starts)
-            self._rebase(aged)
             marginal = self._marginal(graph, point, window)
             for key in marginal.keyVector():
                 if key_kind(key) == POSE and key not in self._folded_heading:
@@ -318,15 +319,13 @@ class IncrementalBackend(BackendBase):
         self._permanent -= aged
         return aged
 
-    def _rebase(self, aged: set[int]) -> None:
-        """Retired poses and objects on an aged keyframe move onto the keyframe it was
-        itself retired onto (`_retire`), so that every anchor is a live keyframe."""
+    def _freeze(self, aged: set[int]) -> None:
+        """Aged keyframes are held where they stand, with their marginal covariance: what
+        hangs on them stays there (moved onto a newer keyframe, a far plant would swing
+        with its heading)."""
         for keyframe in aged:
-            row = self._retired_poses.row(keyframe)
-            onto = int(self._retired_poses.keyframes[row])
-            relative = self._retired_poses.local[row]
-            self._retired_poses.rebase(keyframe, onto, relative)
-            self._retired_objects.rebase(keyframe, onto, relative)
+            cov = self._isam.marginalCovariance(keyframe)
+            self._frozen.freeze(keyframe, self._estimate(keyframe), cov)
             self._folded_heading.pop(keyframe, None)
             self._cov_cache.pop(keyframe, None)
 
@@ -353,6 +352,8 @@ class IncrementalBackend(BackendBase):
         anchored: dict[int, list[int]] = {}
         driven: dict[str, list[int]] = {}
         for key in window:
+            if key in self._frozen:
+                continue
             if key_kind(key) == POSE:
                 driven.setdefault(self.graph.robot_of(key), []).append(key)
                 continue
@@ -365,11 +366,8 @@ class IncrementalBackend(BackendBase):
         for robot, keys in driven.items():
             end = self._keyframes[robot][-1]
             start = starts.get(robot, end)
-            start = end if start in window else start  # aged away in this fold
             keys.sort()  # a robot's pose keys count up in the order driven
-            older = [k for k in keys if k < start]  # keyframes aged away: on the newest
-            self._retired_poses.put_window(older, end, end, point)
-            self._retired_poses.put_window(keys[len(older) :], start, end, point)
+            self._retired_poses.put_window(keys, start, end, point)
         blanket = [k for k in point.keys() if k not in window]  # noqa: SIM118
         # with the factors already among the blanket's nodes (odometry between keyframes,
         # row spacing): an object seen from two keyframes is known given either
@@ -463,6 +461,7 @@ class IncrementalBackend(BackendBase):
             return
         self._retired_poses.relocate_at(solution)
         self._retired_objects.relocate_at(solution)
+        self._frozen.moved_to(solution)
 
     def _refine_folded(self) -> None:
         """A graph too large for one batch: Gauss-Newton on the keyframe graph the history
@@ -531,6 +530,8 @@ class IncrementalBackend(BackendBase):
         once each robot has taken `slam.covariance_reuse_steps` steps since it was read
         (robots share the step count: five reading every ten steps would each read every
         other frame, a cost growing with the robots, issue 11) or a new factor touched it."""
+        if (frozen := self._frozen.covariance(key)) is not None:
+            return frozen
         cached = self._cov_cache.get(key)
         reuse = self.slam.covariance_reuse_steps * max(len(self.graph.robots), 1)
         if cached is None or self._step - cached[0] >= reuse:
@@ -584,15 +585,11 @@ class IncrementalBackend(BackendBase):
         if len(rows):
             objects = self._retired_objects
             keyframes, z = objects.keyframes[rows], objects.local[rows]
-            theta = self._frames(keyframes)[:, 2]
-            c, s = np.cos(theta), np.sin(theta)
-            rot = np.stack([np.stack([c, -s], axis=-1), np.stack([s, c], axis=-1)], axis=1)
-            # l = K (+) z: dl/dxi = R point_jacobian(z) for K Exp(xi) (GTSAM's tangent); dl/dz = R
-            jac = rot @ point_jacobian(z)
+            frames = self._frames(keyframes)
             cov_k = np.stack(per_distinct(keyframes, self._marginal_covariance))
-            rot_t = np.swapaxes(rot, 1, 2)
-            given = objects.covariances(rows)
-            out[retired] = jac @ cov_k @ np.swapaxes(jac, 1, 2) + rot @ given @ rot_t
+            rot = rotation(frames[:, 2])  # l = K (+) z: the keyframe's part and z's
+            given = rot @ objects.covariances(rows) @ np.swapaxes(rot, 1, 2)
+            out[retired] = pose_uncertainty_at(frames, cov_k, z) + given
         return out
 
     def live_size(self) -> int:

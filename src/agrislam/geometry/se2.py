@@ -11,9 +11,10 @@ def wrap_angle(theta: np.ndarray | float) -> np.ndarray | float:
     return (np.asarray(theta) + np.pi) % (2 * np.pi) - np.pi
 
 
-def rotation(theta: float) -> np.ndarray:
+def rotation(theta: float | np.ndarray) -> np.ndarray:
+    """(2, 2) the rotation by `theta`; (k, 2, 2) for k angles."""
     c, s = np.cos(theta), np.sin(theta)
-    return np.array([[c, -s], [s, c]])
+    return np.moveaxis(np.array([[c, -s], [s, c]]), (0, 1), (-2, -1))
 
 
 def compose(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -76,8 +77,9 @@ def point_jacobian(xy: np.ndarray) -> np.ndarray:
 def pose_uncertainty_at(pose: np.ndarray, pose_cov: np.ndarray, xy: np.ndarray) -> np.ndarray:
     """(m, 2, 2) map-frame covariance that a pose's uncertainty gives robot-frame points
     xy (m, 2), with `pose_cov` (3, 3) GTSAM's Pose2 marginal (the tangent of T Exp(xi),
-    in the robot's own frame): J cov J^T with J = R point_jacobian(p)."""
-    jac = rotation(pose[2]) @ point_jacobian(xy)
+    in the robot's own frame): J cov J^T with J = R point_jacobian(p). Each point may have
+    its own pose: `pose` (m, 3) and `pose_cov` (m, 3, 3)."""
+    jac = rotation(pose[..., 2]) @ point_jacobian(xy)
     return jac @ pose_cov @ jac.transpose(0, 2, 1)
 
 
