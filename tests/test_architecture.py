@@ -24,6 +24,7 @@ CORE = [
     "semantics",
     "snapshot",
     "geometry",
+    "spatial_index",
     "association",
     "objects",
     "maintenance",

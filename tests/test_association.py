@@ -5,7 +5,6 @@ import pytest
 
 from agrislam.association import (
     PlacedDetections,
-    SpatialIndex,
     assign,
     association_matrix,
     distance_term,
@@ -124,16 +123,6 @@ def test_max_association_distance_is_where_the_best_entry_reaches_one():
     assert max_association_distance(0.4, 0.8, 0.3, 0) == pytest.approx(0.8)
 
 
-def test_spatial_index_finds_tree_and_fresh_objects_within_radius():
-    index = SpatialIndex(margin=0.0)
-    index.rebuild(np.array([0, 1, 2]), np.array([[0.0, 0.0], [1.0, 0.0], [10.0, 0.0]]))
-    index.move(np.array([3]), np.array([[0.5, 0.5]]))
-    assert index.query(np.array([[0.0, 0.0]]), 1.01).tolist() == [0, 1, 3]
-    assert index.query(np.array([[10.0, 0.2]]), 0.5).tolist() == [2]
-    index.forget(np.array([0]))
-    assert index.query(np.array([[0.0, 0.0]]), 0.1).tolist() == []
-
-
 def test_per_pair_covariance_and_a_wider_gate():
     """K_n + R_m per pair and gate_chi2: e = (1, 0), S = 2 I -> e^T S^-1 e = 0.5, / 4."""
     k = np.array([[[1.0, 0.0], [0.0, 1.0]]])
@@ -174,20 +163,3 @@ def test_innovation_covariance_takes_the_tighter_of_absolute_and_relative():
     # no pose marginal, no chain: K_n + R_m
     bare = PlacedDetections(np.zeros((1, 2)), r[None], [{}])
     assert innovation_covariance(bare, object_cov)[0, 1] == pytest.approx(np.diag([0.5, 0.5]))
-
-
-def test_spatial_index_builds_from_the_positions_it_was_told_and_sweeps_in_turn():
-    index = SpatialIndex(margin=0.0, sweep_steps=3)
-    index.move(np.array([0, 1]), np.array([[0.0, 0.0], [5.0, 0.0]]))
-    index.settle(np.array([1]), np.array([[9.0, 0.0]]))  # moved, read in a sweep
-    index.rebuild()  # no positions given: the ones known, nothing from the back end
-    assert index.n_fresh == 0
-    assert index.query(np.array([[9.0, 0.0]]), 0.1).tolist() == [1]
-    assert index.query(np.array([[5.0, 0.0]]), 0.1).tolist() == []
-    index.forget(np.array([1]))
-    index.rebuild()
-    assert index.query(np.array([[9.0, 0.0]]), 0.1).tolist() == []
-    active = np.arange(7)
-    turns = [index.due(active).tolist() for _ in range(4)]
-    assert turns[:3] == [[0, 1, 2], [3, 4, 5], [6]]  # every object once in 3 calls
-    assert turns[3] == [0, 1, 2]

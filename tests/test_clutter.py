@@ -6,7 +6,6 @@ cluttered one must stay clean, a clean one must confirm its plants early."""
 import numpy as np
 import pytest
 
-from agrislam.association import SpatialIndex
 from agrislam.config import AgrislamConfig, MaintenanceConfig, SensorDefaults
 from agrislam.geometry.noise import SensorModel
 from agrislam.geometry.view_area import ViewArea, log_odds_absent
@@ -19,6 +18,7 @@ from agrislam.sim.config import SimConfig
 from agrislam.sim.detector import Detector
 from agrislam.sim.field import make_field
 from agrislam.sim.simulator import Simulator
+from agrislam.spatial_index import SpatialIndex
 from agrislam.world import WorldModel
 
 PAPER = {

@@ -7,7 +7,8 @@ The association matrix entry of detection m and object n is
 with e = z_n - z_m, K_n the object's marginal position covariance; entries above 1
 are forbidden; the assignment minimises the sum (scipy's linear_sum_assignment).
 Only objects within the largest distance the formula can still accept are looked
-at, found through a KD-tree over the map, so a frame's cost does not grow with it.
+at, found through the spatial index (spatial_index.py), so a frame's cost does not grow
+with it.
 """
 
 from __future__ import annotations
@@ -17,7 +18,6 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
-from scipy.spatial import cKDTree
 
 from agrislam.config import AssociationConfig, FieldSchema
 from agrislam.geometry.calibration import mahalanobis
@@ -179,91 +179,3 @@ def max_association_distance(
     (Sec. 2.4 states the looser bound max(d_inter, sqrt(lambda)) w_sem^-|Y|.)
     """
     return max(d_inter, sigma_max) * (1.0 - w_sem) ** (-0.5 * n_measured)
-
-
-class SpatialIndex:
-    """KD-tree over object positions: it keeps each object's last known position (by id)
-    and builds its tree from them now and then; objects added or moved since the last
-    build are searched directly. Every query is widened by `margin`, the distance the map
-    may have moved an object since the build. Building reads nothing from the back end,
-    so its cost is the tree's alone."""
-
-    def __init__(self, margin: float = 0.3, sweep_steps: int = 500) -> None:
-        self.margin = margin
-        self.sweep_steps = sweep_steps
-        self._sweep_at = 0
-        self._tree: cKDTree | None = None
-        self._tree_ids = np.empty(0, dtype=int)
-        self._fresh: dict[int, np.ndarray] = {}
-        self._xy = np.full((0, 2), np.nan)  # row = object id; NaN: not indexed
-
-    def rebuild(self, ids: np.ndarray | None = None, xy: np.ndarray | None = None) -> None:
-        """Build the tree from the positions known (given `ids` and `xy`: from those
-        alone, forgetting every other object)."""
-        if ids is not None and xy is not None:
-            self._xy[:] = np.nan
-            self.settle(ids, xy)
-        self._tree_ids = np.flatnonzero(~np.isnan(self._xy[:, 0]))
-        self._tree = cKDTree(self._xy[self._tree_ids]) if len(self._tree_ids) else None
-        self._fresh.clear()
-
-    @property
-    def n_fresh(self) -> int:
-        return len(self._fresh)
-
-    def move(self, ids: np.ndarray, xy: np.ndarray) -> None:
-        """Objects just added, or whose estimate was just refreshed: searched directly."""
-        self.settle(ids, xy)
-        for i, p in zip(np.asarray(ids).tolist(), xy, strict=True):
-            self._fresh[i] = p
-
-    def settle(self, ids: np.ndarray, xy: np.ndarray) -> None:
-        """New positions of objects that moved little (less than `margin` since the
-        last build): the next build uses them."""
-        ids = np.asarray(ids, dtype=int)
-        if len(ids) and ids.max() >= len(self._xy):
-            grown = np.full((max(int(ids.max()) + 1, 2 * len(self._xy)), 2), np.nan)
-            grown[: len(self._xy)] = self._xy
-            self._xy = grown
-        self._xy[ids] = xy
-
-    def due(self, active: np.ndarray) -> np.ndarray:
-        """The share of the `active` objects whose positions are to be read again this
-        step (and `settle`d), in turn: every one once in `sweep_steps` calls. Objects not
-        seen move only with the map's keyframes; reading all at once would stall a step."""
-        if not len(active):
-            return active
-        size = -(-len(active) // self.sweep_steps)
-        start = self._sweep_at if self._sweep_at < len(active) else 0
-        self._sweep_at = start + size
-        return active[start : start + size]
-
-    def forget(self, ids: np.ndarray) -> None:
-        ids = np.atleast_1d(ids)
-        for i in ids.tolist():
-            self._fresh.pop(i, None)
-        self._xy[ids[ids < len(self._xy)]] = np.nan
-        if len(self._tree_ids):
-            self._tree_ids = np.where(np.isin(self._tree_ids, ids), -1, self._tree_ids)
-
-    def position(self, ids: np.ndarray) -> np.ndarray:
-        """(k, 2) the last known positions of indexed objects."""
-        return self._xy[np.asarray(ids, dtype=int)].reshape(-1, 2)
-
-    def query(self, centres: np.ndarray, radius: float) -> np.ndarray:
-        """Ids of all objects within `radius` of any of `centres` (sorted, unique); may
-        include objects up to `margin` farther, never misses one within `radius`."""
-        found: list[np.ndarray] = []
-        if self._tree is not None and len(centres):
-            hits = self._tree.query_ball_point(centres, radius + self.margin)
-            idx = np.unique(np.concatenate([np.asarray(h, dtype=int) for h in hits]))
-            ids = self._tree_ids[idx]
-            found.append(ids[ids >= 0])
-        if self._fresh and len(centres):
-            fresh_ids = np.fromiter(self._fresh.keys(), dtype=int, count=len(self._fresh))
-            fresh_xy = np.stack(list(self._fresh.values()))
-            d2 = ((fresh_xy[:, None, :] - centres[None, :, :]) ** 2).sum(-1).min(axis=1)
-            found.append(fresh_ids[d2 <= radius**2])
-        if not found:
-            return np.empty(0, dtype=int)
-        return np.unique(np.concatenate(found))

@@ -30,11 +30,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from agrislam.association import SpatialIndex
 from agrislam.config import MaintenanceConfig
 from agrislam.geometry.view_area import ViewArea, log_odds_absent
 from agrislam.objects import ObjectTable
 from agrislam.snapshot import STATUS_MERGED
+from agrislam.spatial_index import SpatialIndex
 
 SAMPLE = 20_000  # robot-frame detections the seen area is learned from
 EM_ROUNDS = 10

@@ -17,7 +17,6 @@ import numpy as np
 
 from agrislam.association import (
     PlacedDetections,
-    SpatialIndex,
     assign,
     association_matrix,
     informative_measurements,
@@ -42,6 +41,7 @@ from agrislam.records import Detection, Detections, FieldPrior, GnssFix, Meta, O
 from agrislam.semantics.beliefs import BeliefTable
 from agrislam.semantics.heuristic import interest_surface
 from agrislam.snapshot import STATUS_MERGED, STATUS_PRUNED, MapSnapshot, ObjectMap, Trajectory
+from agrislam.spatial_index import SpatialIndex
 from agrislam.stage_timer import StageTimer
 
 # what each timed stage of a step does (DESIGN.md "The pipeline, one step")

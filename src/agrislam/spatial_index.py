@@ -1,0 +1,164 @@
+"""The map's spatial index (DESIGN step 4, the gate's first cut): which objects lie near a
+point, in time that does not grow with the field.
+
+The plane is cut into square tiles, each with its own KD-tree over the positions its
+objects had when it was built. A tile is built again only when something in it changed:
+an object added or moved, or one whose position, read again, has moved more than half
+the margin since. On a field of 100,000 plants the robot changes a few tiles near it; one
+KD-tree over the whole field took 35-70 ms to build again (issue 14), a stall every
+`index_rebuild_steps` steps.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+TILE = 8.0  # m, the side of a tile: a few hundred plants, a few in one camera view
+
+
+class SpatialIndex:
+    """Object positions by id, found by distance: tiled KD-trees built from the last
+    known positions now and then; objects added or moved since are searched directly.
+    Every query is widened by `margin`, the distance an object's estimate may have moved
+    since its tile was built. Building reads nothing from the back end, so its cost is
+    the trees' alone."""
+
+    def __init__(self, margin: float = 0.3, sweep_steps: int = 500) -> None:
+        self.margin = margin
+        self.sweep_steps = sweep_steps
+        self._sweep_at = 0
+        self._xy = np.full((0, 2), np.nan)  # row = object id; NaN: not indexed
+        self._built_xy = np.full((0, 2), np.nan)  # where its tile's tree holds it
+        self._tiles: dict[tuple[int, int], tuple[cKDTree, np.ndarray]] = {}  # tree, ids
+        self._dirty: set[tuple[int, int]] = set()  # tiles to build again
+        self._fresh: dict[int, np.ndarray] = {}
+
+    # ------------------------------------------------------------------ building
+    def rebuild(self, ids: np.ndarray | None = None, xy: np.ndarray | None = None) -> None:
+        """Build again the tiles that changed (given `ids` and `xy`: every tile, from those
+        alone, forgetting every other object)."""
+        if ids is not None and xy is not None:
+            self._xy[:] = self._built_xy[:] = np.nan
+            self._dirty.update(self._tiles)
+            self.settle(ids, xy)
+        if self._dirty:
+            self._build(self._dirty)
+        self._dirty.clear()
+        self._fresh.clear()
+
+    def _build(self, tiles: set[tuple[int, int]]) -> None:
+        indexed = np.flatnonzero(~np.isnan(self._xy[:, 0]))
+        keys = _tile_of(self._xy[indexed])
+        mine = np.isin(_packed(keys), _packed(np.array(sorted(tiles)).reshape(-1, 2)))
+        members = indexed[mine]
+        order = np.lexsort((keys[mine, 1], keys[mine, 0]))
+        members, keys = members[order], keys[mine][order]
+        starts = np.flatnonzero(np.r_[True, np.any(np.diff(keys, axis=0) != 0, axis=1)])
+        for tile in tiles:
+            self._tiles.pop(tile, None)
+        for ids in np.split(members, starts[1:]) if len(members) else []:
+            tile = tuple(_tile_of(self._xy[ids[:1]])[0].tolist())
+            self._tiles[tile] = (cKDTree(self._xy[ids]), ids)
+            self._built_xy[ids] = self._xy[ids]
+
+    @property
+    def n_fresh(self) -> int:
+        return len(self._fresh)
+
+    def move(self, ids: np.ndarray, xy: np.ndarray) -> None:
+        """Objects just added, or whose estimate was just refreshed: searched directly."""
+        self.settle(ids, xy)
+        for i, p in zip(np.asarray(ids).tolist(), xy, strict=True):
+            self._fresh[i] = p
+
+    def settle(self, ids: np.ndarray, xy: np.ndarray) -> None:
+        """New positions of objects: the next build uses them; one that moved more than half
+        the margin since its tile was built gets its tile (and the one it is in now) built."""
+        ids = np.asarray(ids, dtype=int)
+        if len(ids) and ids.max() >= len(self._xy):
+            size = max(int(ids.max()) + 1, 2 * len(self._xy))
+            self._xy, self._built_xy = _grown(self._xy, size), _grown(self._built_xy, size)
+        xy = np.asarray(xy, dtype=float).reshape(-1, 2)
+        self._xy[ids] = xy
+        built = self._built_xy[ids]
+        moved = ~(np.sum((xy - built) ** 2, axis=1) <= (0.5 * self.margin) ** 2)  # NaN: new
+        if moved.any():
+            self._dirty |= _tiles_under(np.concatenate([xy[moved], built[moved]]))
+
+    def due(self, active: np.ndarray) -> np.ndarray:
+        """The share of the `active` objects whose positions are to be read again this
+        step (and `settle`d), in turn: every one once in `sweep_steps` calls. Objects not
+        seen move only with the map's keyframes; reading all at once would stall a step."""
+        if not len(active):
+            return active
+        size = -(-len(active) // self.sweep_steps)
+        start = self._sweep_at if self._sweep_at < len(active) else 0
+        self._sweep_at = start + size
+        return active[start : start + size]
+
+    def forget(self, ids: np.ndarray) -> None:
+        ids = np.atleast_1d(ids)
+        ids = ids[ids < len(self._xy)]
+        for i in ids.tolist():
+            self._fresh.pop(i, None)
+        self._dirty |= _tiles_under(self._built_xy[ids])
+        self._xy[ids] = self._built_xy[ids] = np.nan
+
+    # ------------------------------------------------------------------ queries
+    def position(self, ids: np.ndarray) -> np.ndarray:
+        """(k, 2) the last known positions of indexed objects."""
+        return self._xy[np.asarray(ids, dtype=int)].reshape(-1, 2)
+
+    def query(self, centres: np.ndarray, radius: float) -> np.ndarray:
+        """Ids of all objects within `radius` of any of `centres` (sorted, unique): never
+        misses one within `radius`, may include one up to `margin` farther (its estimate
+        may have moved that much since it was last read)."""
+        found: list[np.ndarray] = []
+        if self._tiles and len(centres):
+            reach = radius + self.margin
+            lo = _tile_of(centres.min(axis=0)[None] - reach)[0]
+            hi = _tile_of(centres.max(axis=0)[None] + reach)[0]
+            for ix in range(int(lo[0]), int(hi[0]) + 1):
+                for iy in range(int(lo[1]), int(hi[1]) + 1):
+                    if (tile := self._tiles.get((ix, iy))) is not None:
+                        found.append(_within(tile, centres, reach))
+        if self._fresh and len(centres):
+            fresh_ids = np.fromiter(self._fresh.keys(), dtype=int, count=len(self._fresh))
+            fresh_xy = np.stack(list(self._fresh.values()))
+            d2 = ((fresh_xy[:, None, :] - centres[None, :, :]) ** 2).sum(-1).min(axis=1)
+            found.append(fresh_ids[d2 <= radius**2])
+        if not found:
+            return np.empty(0, dtype=int)
+        ids = np.unique(np.concatenate(found))
+        # as last known (NaN: forgotten), not as a tile not yet built again holds them
+        d2 = ((self._xy[ids, None, :] - centres[None, :, :]) ** 2).sum(-1).min(axis=1)
+        return ids[d2 <= (radius + self.margin) ** 2]
+
+
+def _within(tile: tuple[cKDTree, np.ndarray], centres: np.ndarray, reach: float) -> np.ndarray:
+    tree, ids = tile
+    hits = tree.query_ball_point(centres, reach)
+    return ids[np.concatenate([np.asarray(h, dtype=int) for h in hits])]
+
+
+def _tile_of(xy: np.ndarray) -> np.ndarray:
+    """(k, 2) integer tile coordinates of points xy (k, 2)."""
+    return np.floor(xy / TILE).astype(np.int64)
+
+
+def _tiles_under(xy: np.ndarray) -> set[tuple[int, int]]:
+    """The tiles points xy (k, 2) lie in (NaN rows: none)."""
+    tiles = np.unique(_tile_of(xy[~np.isnan(xy[:, 0])]), axis=0)
+    return set(map(tuple, tiles.tolist()))
+
+
+def _packed(tiles: np.ndarray) -> np.ndarray:
+    """One int64 per tile (k, 2), to compare tiles as numbers."""
+    return tiles[:, 0] * (1 << 32) + tiles[:, 1]
+
+
+def _grown(table: np.ndarray, size: int) -> np.ndarray:
+    grown = np.full((size, 2), np.nan)
+    grown[: len(table)] = table
+    return grown

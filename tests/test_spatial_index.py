@@ -1,0 +1,86 @@
+"""The map's spatial index (spatial_index.py): never misses an object within the radius,
+builds again only the tiles that changed."""
+
+import numpy as np
+
+from agrislam.spatial_index import TILE, SpatialIndex
+
+
+def test_spatial_index_finds_tree_and_fresh_objects_within_radius():
+    index = SpatialIndex(margin=0.0)
+    index.rebuild(np.array([0, 1, 2]), np.array([[0.0, 0.0], [1.0, 0.0], [10.0, 0.0]]))
+    index.move(np.array([3]), np.array([[0.5, 0.5]]))
+    assert index.query(np.array([[0.0, 0.0]]), 1.01).tolist() == [0, 1, 3]
+    assert index.query(np.array([[10.0, 0.2]]), 0.5).tolist() == [2]
+    index.forget(np.array([0]))
+    assert index.query(np.array([[0.0, 0.0]]), 0.1).tolist() == []
+
+
+def test_spatial_index_builds_from_the_positions_it_was_told_and_sweeps_in_turn():
+    index = SpatialIndex(margin=0.0, sweep_steps=3)
+    index.move(np.array([0, 1]), np.array([[0.0, 0.0], [5.0, 0.0]]))
+    index.settle(np.array([1]), np.array([[9.0, 0.0]]))  # moved, read in a sweep
+    index.rebuild()  # no positions given: the ones known, nothing from the back end
+    assert index.n_fresh == 0
+    assert index.query(np.array([[9.0, 0.0]]), 0.1).tolist() == [1]
+    assert index.query(np.array([[5.0, 0.0]]), 0.1).tolist() == []
+    index.forget(np.array([1]))
+    index.rebuild()
+    assert index.query(np.array([[9.0, 0.0]]), 0.1).tolist() == []
+    active = np.arange(7)
+    turns = [index.due(active).tolist() for _ in range(4)]
+    assert turns[:3] == [[0, 1, 2], [3, 4, 5], [6]]  # every object once in 3 calls
+    assert turns[3] == [0, 1, 2]
+
+
+def brute_force(xy: np.ndarray, centres: np.ndarray, radius: float) -> set[int]:
+    d2 = ((xy[:, None, :] - centres[None, :, :]) ** 2).sum(-1).min(axis=1)
+    return set(np.flatnonzero(d2 <= radius**2).tolist())
+
+
+def test_spatial_index_never_misses_an_object_as_the_map_moves_and_is_rebuilt():
+    """Objects added, moved a little (settled) or much (moved), forgotten, across many
+    tiles, with builds in between: every query holds every object within the radius and
+    nothing beyond radius + margin."""
+    rng = np.random.default_rng(4)
+    margin, n = 0.3, 3000
+    index = SpatialIndex(margin=margin)
+    truth = rng.uniform(-3 * TILE, 5 * TILE, size=(n, 2))
+    index.rebuild(np.arange(n), truth)
+    alive = np.ones(n, dtype=bool)
+    for step in range(60):
+        some = rng.choice(np.flatnonzero(alive), 40, replace=False)
+        truth[some] += rng.normal(0.0, 0.05, size=(40, 2))  # the map bends a little
+        index.settle(some, truth[some])
+        jumped = rng.choice(np.flatnonzero(alive), 3, replace=False)
+        truth[jumped] += rng.uniform(-TILE, TILE, size=(3, 2))  # a merge, a loop closure
+        index.move(jumped, truth[jumped])
+        gone = rng.choice(np.flatnonzero(alive), 2, replace=False)
+        index.forget(gone)
+        alive[gone] = False
+        if step % 7 == 0:
+            index.rebuild()
+        centres = rng.uniform(-3 * TILE, 5 * TILE, size=(1, 2)) + rng.normal(0, 1.0, (5, 2))
+        radius = rng.uniform(0.2, 4.0)
+        got = set(index.query(centres, radius).tolist())
+        live = np.flatnonzero(alive)
+        within = {int(live[i]) for i in brute_force(truth[live], centres, radius)}
+        assert within <= got, f"step {step}: missed {within - got}"
+        reach = {int(live[i]) for i in brute_force(truth[live], centres, radius + margin)}
+        assert got <= reach, f"step {step}: {got - reach} beyond the margin"
+
+
+def test_a_build_touches_only_the_tiles_that_changed():
+    index = SpatialIndex(margin=0.3)
+    xy = np.array([[1.0, 1.0], [1.5, 1.0], [TILE * 3 + 1.0, 1.0]])
+    index.rebuild(np.arange(3), xy)
+    far_tree = index._tiles[(3, 0)][0]
+    index.settle(np.array([0]), np.array([[1.1, 1.0]]))  # less than half the margin
+    index.move(np.array([3]), np.array([[2.0, 2.0]]))  # a new object near the first two
+    index.rebuild()
+    assert index._tiles[(3, 0)][0] is far_tree  # the far tile was not built again
+    assert sorted(index._tiles[(0, 0)][1].tolist()) == [0, 1, 3]
+    index.settle(np.array([2]), np.array([[1.0, 5.0]]))  # read again far off: both tiles
+    index.rebuild()
+    assert (3, 0) not in index._tiles
+    assert index.query(np.array([[1.0, 5.0]]), 0.1).tolist() == [2]
