@@ -6,13 +6,18 @@ pipeline with every output written to a temporary folder), which reports its own
 resident set size (`getrusage`), so one survey's memory never counts for another. A child
 with a 40-plant survey gives the interpreter's and libraries' baseline; the slope per plant
 (between the two largest sizes) extrapolates the largest to 1,000,000 plants. Survey time
-is the survey's own (its time stamps) and its frames at 1 frame per second.
+is the survey's own (its time stamps) and its frames at 1 frame per second. Accuracy is
+the simulator's truth: the trajectory's RMS against dead reckoning's (the default survey
+has no GNSS, so a large field bends along its rows: rigid alignment cannot take that out)
+and the association's purity.
 
     python benchmarks/bench_scale.py [--sizes 400 10000] [--huge] [--seed 2]
                                      [--baseline-src ../other-checkout/src]
+                                     [--set '{"slam": {"keyframes_kept": 0}}']
 
 `--baseline-src` runs the same surveys with another checkout's code (the previous state)
-beside this one's, in the same run.
+beside this one's, in the same run; `--set` changes the configuration of both (the title
+then says it is not the default).
 """
 
 from __future__ import annotations
@@ -38,7 +43,7 @@ TARGET_PLANTS = 1_000_000
 console = Console(width=170)
 
 
-def child(plants: int, seed: int) -> dict[str, Any]:
+def child(plants: int, seed: int, changes: dict[str, Any]) -> dict[str, Any]:
     """One survey, run here: the figures the parent prints (in a child process)."""
     from agrislam.config import AgrislamConfig
     from agrislam.pipeline import run_survey
@@ -46,7 +51,7 @@ def child(plants: int, seed: int) -> dict[str, Any]:
     from agrislam.sources.simulated import simulation_uri
     from agrislam.world import WorldModel
 
-    config = AgrislamConfig()
+    config = AgrislamConfig.model_validate(changes)
     source = open_source(simulation_uri(plants=plants, seed=seed), config)
     with tempfile.TemporaryDirectory() as out:
         result = run_survey(source, WorldModel(config), out)
@@ -61,13 +66,26 @@ def child(plants: int, seed: int) -> dict[str, Any]:
         "survey": survey,
         "steps_ms": (steps * 1e3).tolist(),
         "max_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+        **accuracy(result.metrics or {}),
     }
 
 
-def measure(plants: int, seed: int, src: Path) -> dict[str, Any]:
+def accuracy(metrics: dict[str, Any]) -> dict[str, float]:
+    """Trajectory RMS (optimised, dead reckoning) and purity from a run's metrics (NaN
+    where the run has none)."""
+    trajectory = metrics.get("trajectory", {})
+    return {
+        "trajectory_m": trajectory.get("optimised", {}).get("rms_position", float("nan")),
+        "dead_reckoning_m": trajectory.get("dead_reckoning", {}).get("rms_position", float("nan")),
+        "purity": metrics.get("association", {}).get("purity", float("nan")),
+    }
+
+
+def measure(plants: int, seed: int, src: Path, changes: dict[str, Any]) -> dict[str, Any]:
     """The survey in a child process with `src` on its path; its figures."""
     env = {**os.environ, "PYTHONPATH": str(src)}
     command = [sys.executable, __file__, "--child", str(plants), "--seed", str(seed)]
+    command += ["--set", json.dumps(changes)]
     start = time.perf_counter()
     done = subprocess.run(command, env=env, capture_output=True, text=True, check=False)
     if done.returncode != 0:
@@ -98,6 +116,8 @@ def table(name: str, rows: list[dict[str, Any]], base_mb: float) -> Table:
         "survey s",
         "survey / wall",
         "frames at 1 fps / wall",
+        "trajectory / DR m",
+        "purity",
     ):
         out.add_column(column, justify="right")
     for r in rows:
@@ -114,15 +134,17 @@ def table(name: str, rows: list[dict[str, Any]], base_mb: float) -> Table:
             f"{r['survey']:.0f}",
             f"{r['survey'] / max(r['wall'], 1e-9):.0f}x",
             f"{r['frames'] / max(r['wall'], 1e-9):.0f}x",
+            f"{r['trajectory_m']:.3f} / {r['dead_reckoning_m']:.2f}",
+            f"{r['purity']:.3f}",
         )
     return out
 
 
-def report(name: str, src: Path, sizes: list[int], seed: int) -> None:
-    base = measure(BASELINE_PLANTS, seed, src)["max_rss_mb"]
+def report(name: str, src: Path, sizes: list[int], seed: int, changes: dict[str, Any]) -> None:
+    base = measure(BASELINE_PLANTS, seed, src, changes)["max_rss_mb"]
     rows = []
     for plants in sizes:
-        rows.append(measure(plants, seed, src))
+        rows.append(measure(plants, seed, src, changes))
         console.print(f"{name}: {plants:,} plants done in {rows[-1]['process_seconds']:.0f} s")
     console.print(table(name, rows, base))
     slope = slope_mb_per_plant(rows, base)
@@ -145,15 +167,21 @@ def main() -> None:
     parser.add_argument("--huge", action="store_true", help="also 100,000 plants (hours)")
     parser.add_argument("--seed", type=int, default=2)
     parser.add_argument("--baseline-src", type=Path, help="another checkout's src folder")
+    parser.add_argument(
+        "--set", type=json.loads, default={}, metavar="JSON", help="config changes (both runs)"
+    )
     parser.add_argument("--child", type=int, help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.child is not None:
-        print(json.dumps(child(args.child, args.seed)))
+        print(json.dumps(child(args.child, args.seed, args.set)))
         return
     sizes = sorted(set(args.sizes + ([100_000] if args.huge else [])))
-    report("this checkout", ROOT / "src", sizes, args.seed)
+    if args.set:
+        console.print(f"NOT the default configuration: {json.dumps(args.set)}")
+    report("this checkout", ROOT / "src", sizes, args.seed, args.set)
     if args.baseline_src is not None:
-        report(f"baseline {args.baseline_src}", args.baseline_src.resolve(), sizes, args.seed)
+        src = args.baseline_src.resolve()
+        report(f"baseline {args.baseline_src}", src, sizes, args.seed, args.set)
 
 
 if __name__ == "__main__":
