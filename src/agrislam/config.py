@@ -396,11 +396,12 @@ class SlamConfig(_Strict):
         "keyframes so a step's cost stays bounded; 0 = plain iSAM2 over the whole graph",
     )
     keyframes_kept: int = Field(
-        0,
+        100,
         ge=0,
         description="keyframes each robot keeps in the graph; older ones are folded away "
         "and held where they stand, with what hangs on them, so the graph stays bounded "
-        "however long the survey; 0 = every keyframe stays",
+        "however long the survey (a loop longer than this localises against the old map); "
+        "0 = every keyframe stays",
     )
     covariance_reuse_steps: int = Field(
         10,
