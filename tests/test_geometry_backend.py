@@ -291,6 +291,17 @@ def test_keyframes_beyond_the_kept_ones_fold_away_and_hold_what_hangs_on_them(sm
     g.refine()  # the whole record is kept: the batch solution again
     refined = b.positions(g, ids)
     assert max(np.linalg.norm(refined[k] - exact[k]) for k in ids) < 1e-3
+    # a fix pulls the live graph 0.5 m: the objects on frozen keyframes stay where they are
+    everything = np.array(list(ids.values()))
+    settled = g.settled_objects()
+    assert 0 < len(settled) < len(everything)
+    before, refines = g.object_positions(everything), g.refines  # (a refine moves all)
+    robot = next(iter(g.graph.robots))
+    fix = np.r_[g.current_pose(robot)[:2] + np.array([0.0, 0.5]), 0.0, 0.0, 1.0, 0.0]
+    g.add_gnss(robot, fix, np.eye(2) * 1e-4)
+    g.update()
+    moved = np.linalg.norm(g.object_positions(everything) - before, axis=1)
+    assert g.refines == refines and not moved[settled].any() and moved.max() > 0.1
     with pytest.raises(ValueError, match="keyframes_kept"):
         SlamConfig(keyframes_kept=-1)
 

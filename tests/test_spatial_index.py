@@ -27,10 +27,10 @@ def test_spatial_index_builds_from_the_positions_it_was_told_and_sweeps_in_turn(
     index.forget(np.array([1]))
     index.rebuild()
     assert index.query(np.array([[9.0, 0.0]]), 0.1).tolist() == []
-    active = np.arange(7)
-    turns = [index.due(active).tolist() for _ in range(4)]
+    rounds = [np.arange(7), np.arange(10, 13)]
+    turns = [index.due(lambda: rounds.pop(0)).tolist() for _ in range(4)]
     assert turns[:3] == [[0, 1, 2], [3, 4, 5], [6]]  # every object once in 3 calls
-    assert turns[3] == [0, 1, 2]
+    assert turns[3] == [10] and rounds == []  # a new round asks again what drifts
 
 
 def brute_force(xy: np.ndarray, centres: np.ndarray, radius: float) -> set[int]:

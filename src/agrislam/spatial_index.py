@@ -11,6 +11,8 @@ KD-tree over the whole field took 35-70 ms to build again (issue 14), a stall ev
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 from scipy.spatial import cKDTree
 
@@ -28,6 +30,7 @@ class SpatialIndex:
         self.margin = margin
         self.sweep_steps = sweep_steps
         self._sweep_at = 0
+        self._round = np.empty(0, dtype=np.int64)  # what the sweep reads in turn
         self._xy = np.full((0, 2), np.nan)  # row = object id; NaN: not indexed
         self._built_xy = np.full((0, 2), np.nan)  # where its tile's tree holds it
         self._tiles: dict[tuple[int, int], tuple[cKDTree, np.ndarray]] = {}  # tree, ids
@@ -86,16 +89,16 @@ class SpatialIndex:
         if moved.any():
             self._dirty |= _tiles_under(np.concatenate([xy[moved], built[moved]]))
 
-    def due(self, active: np.ndarray) -> np.ndarray:
-        """The share of the `active` objects whose positions are to be read again this
-        step (and `settle`d), in turn: every one once in `sweep_steps` calls. Objects not
-        seen move only with the map's keyframes; reading all at once would stall a step."""
-        if not len(active):
-            return active
-        size = -(-len(active) // self.sweep_steps)
-        start = self._sweep_at if self._sweep_at < len(active) else 0
-        self._sweep_at = start + size
-        return active[start : start + size]
+    def due(self, drifting: Callable[[], np.ndarray]) -> np.ndarray:
+        """The share of the objects whose positions are to be read again this step (and
+        `settle`d), in turn: each round takes the objects `drifting()` gives then, and
+        reads every one once in `sweep_steps` calls. Objects not seen move only with the
+        map's keyframes; reading all at once would stall a step."""
+        if self._sweep_at >= len(self._round):
+            self._round, self._sweep_at = drifting(), 0
+        start = self._sweep_at
+        self._sweep_at += -(-len(self._round) // self.sweep_steps)
+        return self._round[start : self._sweep_at]
 
     def forget(self, ids: np.ndarray) -> None:
         ids = np.atleast_1d(ids)
@@ -149,8 +152,9 @@ def _tile_of(xy: np.ndarray) -> np.ndarray:
 
 def _tiles_under(xy: np.ndarray) -> set[tuple[int, int]]:
     """The tiles points xy (k, 2) lie in (NaN rows: none)."""
-    tiles = np.unique(_tile_of(xy[~np.isnan(xy[:, 0])]), axis=0)
-    return set(map(tuple, tiles.tolist()))
+    tiles = _tile_of(xy[~np.isnan(xy[:, 0])])
+    _, first = np.unique(_packed(tiles), return_index=True)
+    return set(map(tuple, tiles[first].tolist()))
 
 
 def _packed(tiles: np.ndarray) -> np.ndarray:

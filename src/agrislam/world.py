@@ -566,7 +566,7 @@ class WorldModel:
         if self.backend.refines != self._index_refines:  # the whole map moved: read it all
             self._index_refines, swept = self.backend.refines, self.active_ids()
         else:
-            swept = self.index.due(self.active_ids())
+            swept = self.objects.active(self.index.due(self._drifting))
         if len(swept):
             self.index.settle(swept, self.backend.object_positions(swept))
         self._steps_since_rebuild += 1
@@ -574,6 +574,10 @@ class WorldModel:
         if self._steps_since_rebuild >= cfg.index_rebuild_steps or self.index.n_fresh > 500:
             self.index.rebuild()
             self._steps_since_rebuild = 0
+
+    def _drifting(self) -> np.ndarray:
+        """The objects whose estimates may still move (not held on a frozen keyframe)."""
+        return np.setdiff1d(self.active_ids(), self.backend.settled_objects(), assume_unique=True)
 
     def _calibrate_depth(
         self, robot: str, placed: PlacedDetections, object_ids: np.ndarray

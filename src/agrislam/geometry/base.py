@@ -282,6 +282,11 @@ class BackendBase:
         for fid in list(graph.factors):
             self._add(fid)
 
+    def settled_objects(self) -> np.ndarray:
+        """Ids of the objects whose estimates no longer move until a `refine` (the
+        incremental back end's, held on frozen keyframes); here none."""
+        return np.empty(0, dtype=np.int64)
+
     def object_positions(self, object_ids: np.ndarray) -> np.ndarray:
         """(k, 2) current estimates of the given objects; O(k)."""
         require = self.graph.require_object

@@ -17,6 +17,7 @@ import scipy.sparse as sp
 from scipy.linalg import solve_triangular
 from threadpoolctl import ThreadpoolController
 
+from agrislam.geometry.batch import insert_value, value_array
 from agrislam.geometry.graph import POSE, key_kind
 
 T = TypeVar("T")
@@ -154,6 +155,27 @@ def isolating(
             )
             kind = "pose" if key_kind(key) == POSE else "object"
             issues[f"{kind} held by a weak prior: indeterminate in {what}"] += 1
+
+
+def marginalised(
+    graph: gtsam.NonlinearFactorGraph,
+    point: gtsam.Values,
+    window: set[int],
+    issues: Counter[str],
+) -> gtsam.NonlinearFactorGraph:
+    """The window's factors with the window's nodes eliminated: dense factors on the
+    keyframes and rows they touched, linearised at `point` (a node found indeterminate is
+    held by a weak prior first, `isolating`)."""
+    kept = gtsam.Values()
+    for key in point.keys():  # noqa: SIM118
+        if key not in window:
+            insert_value(kept, key, value_array(point, key))
+
+    def eliminated(graph: gtsam.NonlinearFactorGraph) -> gtsam.GaussianFactorGraph:
+        return graph.linearize(point).eliminatePartialMultifrontal(sorted(window))[1]
+
+    remaining = isolating(eliminated, graph, point, issues, "a keyframe fold")
+    return gtsam.LinearContainerFactor.ConvertLinearGraph(remaining, kept)
 
 
 def components(

@@ -42,10 +42,19 @@ from agrislam.geometry.conditioning import (
     indeterminate_key,
     isolating,
     marginal_covariances,
+    marginalised,
     shared_copy,
 )
 from agrislam.geometry.drift import adjoint
-from agrislam.geometry.graph import POSE, ROW, SurveyGraph, key_index, key_kind, make_factor
+from agrislam.geometry.graph import (
+    POSE,
+    ROW,
+    SurveyGraph,
+    key_index,
+    key_indices,
+    key_kind,
+    make_factor,
+)
 from agrislam.geometry.isam_state import (
     Entry,
     PendingUpdate,
@@ -294,7 +303,7 @@ class IncrementalBackend(BackendBase):
                     if not point.exists(key):
                         insert_value(point, key, self._estimate(key))
             self._retire(window, graph, point, starts)
-            marginal = self._marginal(graph, point, window)
+            marginal = marginalised(graph, point, window, self.issues)
             for key in marginal.keyVector():
                 if key_kind(key) == POSE and key not in self._folded_heading:
                     self._folded_heading[key] = point.atPose2(key).theta()
@@ -409,22 +418,6 @@ class IncrementalBackend(BackendBase):
             return [np.eye(2) * FREE_SIGMA**2 for _ in keys]
         rot = rotation(value_array(point, keyframe)[2])
         return [rot.T @ cov @ rot for cov in covs]
-
-    def _marginal(
-        self, graph: gtsam.NonlinearFactorGraph, point: gtsam.Values, window: set[int]
-    ) -> gtsam.NonlinearFactorGraph:
-        """The window's factors with the window's nodes eliminated: dense factors on the
-        keyframes and rows they touched, linearised at the current estimate."""
-        kept = gtsam.Values()
-        for key in point.keys():  # noqa: SIM118
-            if key not in window:
-                insert_value(kept, key, value_array(point, key))
-
-        def eliminated(graph: gtsam.NonlinearFactorGraph) -> gtsam.GaussianFactorGraph:
-            return graph.linearize(point).eliminatePartialMultifrontal(sorted(window))[1]
-
-        remaining = isolating(eliminated, graph, point, self.issues, "a keyframe fold")
-        return gtsam.LinearContainerFactor.ConvertLinearGraph(remaining, kept)
 
     def refine(self, max_factors: int | None = None) -> None:
         """Solve the whole recorded graph (batch, warm-started from the current estimates)
@@ -547,6 +540,10 @@ class IncrementalBackend(BackendBase):
         keys = self.graph.require_objects(object_ids)
         rows = self._retired_objects.rows(keys)
         return rows, [k for k, r in zip(keys, rows.tolist(), strict=True) if r < 0]
+
+    def settled_objects(self) -> np.ndarray:
+        objects = self._retired_objects
+        return key_indices(objects.keys[np.isin(objects.keyframes, self._frozen.keys())])
 
     def object_positions(self, object_ids: np.ndarray) -> np.ndarray:
         """(k, 2) current estimates; a retired object's is its keyframe's pose (+) z, all

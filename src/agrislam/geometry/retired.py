@@ -65,6 +65,9 @@ class FrozenKeyframes:
     def freeze(self, key: int, pose: np.ndarray, cov: np.ndarray) -> None:
         self._held[key] = (np.asarray(pose, dtype=float), np.asarray(cov, dtype=float))
 
+    def keys(self) -> np.ndarray:
+        return np.fromiter(self._held, dtype=np.uint64, count=len(self._held))
+
     def pose(self, key: int) -> np.ndarray | None:
         held = self._held.get(key)
         return None if held is None else held[0]

@@ -14,7 +14,9 @@ def wrap_angle(theta: np.ndarray | float) -> np.ndarray | float:
 def rotation(theta: float | np.ndarray) -> np.ndarray:
     """(2, 2) the rotation by `theta`; (k, 2, 2) for k angles."""
     c, s = np.cos(theta), np.sin(theta)
-    return np.moveaxis(np.array([[c, -s], [s, c]]), (0, 1), (-2, -1))
+    out = np.empty((*np.shape(theta), 2, 2))
+    out[..., 0, 0], out[..., 0, 1], out[..., 1, 0], out[..., 1, 1] = c, -s, s, c
+    return out
 
 
 def compose(a: np.ndarray, b: np.ndarray) -> np.ndarray:
