@@ -310,6 +310,8 @@ class IncrementalBackend(BackendBase):
             self._slots.drop(slots)
             self._pending.remove(slots)
             self._live -= window
+            for key in window:  # a live node's alone (it grew with the field)
+                self._cov_cache.pop(key, None)
             self._solve_pending(marginal)
         self._window_start = self._step
         self.rolls += 1
@@ -336,7 +338,6 @@ class IncrementalBackend(BackendBase):
             cov = self._isam.marginalCovariance(keyframe)
             self._frozen.freeze(keyframe, self._estimate(keyframe), cov)
             self._folded_heading.pop(keyframe, None)
-            self._cov_cache.pop(keyframe, None)
 
     def _converge(self) -> None:
         """Gauss-Newton iterations relinearising everything that moved more than the
