@@ -293,6 +293,7 @@ def test_keyframes_beyond_the_kept_ones_fold_away_and_hold_what_hangs_on_them(sm
     g.refine()  # the whole record is kept: the batch solution again
     refined = b.positions(g, ids)
     assert max(np.linalg.norm(refined[k] - exact[k]) for k in ids) < 1e-3
+    assert g.whole_refine == g.refines  # a batch: settled objects moved too
     # a fix pulls the live graph 0.5 m: the objects on frozen keyframes stay where they are
     everything = np.array(list(ids.values()))
     settled = g.settled_objects()
@@ -304,6 +305,10 @@ def test_keyframes_beyond_the_kept_ones_fold_away_and_hold_what_hangs_on_them(sm
     g.update()
     moved = np.linalg.norm(g.object_positions(everything) - before, axis=1)
     assert g.refines == refines and not moved[settled].any() and moved.max() > 0.1
+    before = g.object_positions(everything)
+    g.refine(max_factors=0)  # too large for a batch: the keyframe graph alone moves
+    assert g.refines == refines + 1 and g.whole_refine < g.refines
+    assert not np.any(g.object_positions(everything)[settled] - before[settled])
     with pytest.raises(ValueError, match="keyframes_kept"):
         SlamConfig(keyframes_kept=-1)
 

@@ -563,8 +563,9 @@ class WorldModel:
         touched = self.objects.active(touched)
         if len(touched):
             self.index.move(touched, self.backend.object_positions(touched))
-        if self.backend.refines != self._index_refines:  # the whole map moved: read it all
-            self._index_refines, swept = self.backend.refines, self.active_ids()
+        if (refines := self.backend.refines) != self._index_refines:  # the map moved
+            whole, self._index_refines = self.backend.whole_refine > self._index_refines, refines
+            swept = self.active_ids() if whole else self._drifting()  # what it moved
         else:
             swept = self.objects.active(self.index.due(self._drifting))
         if len(swept):

@@ -76,7 +76,8 @@ class BackendBase:
         # degenerate geometry the solver isolated instead of stopping the run, by reason
         self.issues: Counter[str] = Counter()
         self.graph = SurveyGraph(self.issues)
-        self.refines = 0  # whole-graph solves so far: each may move every estimate
+        self.refines = 0  # whole-graph solves so far: each may move every unsettled estimate
+        self.whole_refine = 0  # the last of them that moved settled objects too (a batch)
 
     # ------------------------------------------------------------ solver hooks
     def _insert(self, key: int, value: np.ndarray) -> None:

@@ -450,6 +450,8 @@ class IncrementalBackend(BackendBase):
             return
         self._isam = fresh
         self._cov_cache.clear()
+        self.refines += 1
+        self.whole_refine = self.refines
         if not self.window:
             self._slots.reset(Entry(f.keys, fid) for fid, f in self.graph.factors.items())
             return
@@ -497,7 +499,6 @@ class IncrementalBackend(BackendBase):
         self._folded_heading = {
             k: solution.atPose2(k).theta() for k in folded.keyVector() if key_kind(k) == POSE
         }
-        self.refines += 1
 
     # ---------------------------------------------------------------- queries
     def add_odometry(self, robot: str, t: float, delta: np.ndarray, cov: np.ndarray) -> None:
