@@ -14,8 +14,9 @@ window, every `window` steps the recent part of the graph is folded away:
   keyframes and rows they touched becomes one dense factor between those;
 - an object keeps its position relative to a keyframe (with the marginal covariance of
   that relative position); its estimate moves with the keyframe, so a loop closure
-  anywhere corrects the whole map. Seen again, it comes back into the graph tied to that
-  keyframe and gets its new measurements;
+  corrects the whole map the live keyframes hold. Seen again, it comes back into the
+  graph tied to that keyframe (on a frozen one: a prior where it stands) and gets its new
+  measurements;
 - a pose keeps its place relative to both keyframes of its window and moves with each by
   its share of the distance driven between them (`RetiredPoses`).
 
