@@ -8,6 +8,14 @@ import numpy as np
 from numpy.typing import ArrayLike, DTypeLike
 
 
+def grown(old: np.ndarray, size: int, fill: float) -> np.ndarray:
+    """`old` with room for `size` rows, the new ones `fill`ed (a table's columns, grown by
+    doubling where they are kept)."""
+    new = np.full((size, *old.shape[1:]), fill, dtype=old.dtype)
+    new[: len(old)] = old
+    return new
+
+
 class GrowingRows:
     """Rows of shape `row` (() for scalars), appended in order; `array` is a view of them."""
 

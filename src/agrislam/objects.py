@@ -19,6 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from agrislam.growing import grown
 from agrislam.semantics.beliefs import BeliefTable
 from agrislam.snapshot import STATUS_ACTIVE
 
@@ -187,19 +188,13 @@ class ObjectTable:
         if n <= capacity:
             return
         size = max(n, 2 * capacity)
-        self._status = _grown(self._status, size, STATUS_ACTIVE)
-        self._merged_into = _grown(self._merged_into, size, -1)
-        self._n_frames = _grown(self._n_frames, size, 0)
-        self._seen_by = _grown(self._seen_by, size, NO_ROBOT)
-        self._seen_drift = _grown(self._seen_drift, size, 0.0)
-        self._seen_xy = _grown(self._seen_xy, size, 0.0)
-        self._seen_cov = _grown(self._seen_cov, size, 0.0)
-        self._young = _grown(self._young, size, False)
-        self._tentative = _grown(self._tentative, size, False)
-        self._views = _grown(self._views, size, 0)
-
-
-def _grown(old: np.ndarray, size: int, fill: float) -> np.ndarray:
-    new = np.full((size, *old.shape[1:]), fill, dtype=old.dtype)
-    new[: len(old)] = old
-    return new
+        self._status = grown(self._status, size, STATUS_ACTIVE)
+        self._merged_into = grown(self._merged_into, size, -1)
+        self._n_frames = grown(self._n_frames, size, 0)
+        self._seen_by = grown(self._seen_by, size, NO_ROBOT)
+        self._seen_drift = grown(self._seen_drift, size, 0.0)
+        self._seen_xy = grown(self._seen_xy, size, 0.0)
+        self._seen_cov = grown(self._seen_cov, size, 0.0)
+        self._young = grown(self._young, size, False)
+        self._tentative = grown(self._tentative, size, False)
+        self._views = grown(self._views, size, 0)

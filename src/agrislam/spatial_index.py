@@ -16,6 +16,8 @@ from collections.abc import Callable
 import numpy as np
 from scipy.spatial import cKDTree
 
+from agrislam.growing import grown
+
 TILE = 8.0  # m, the side of a tile: a few hundred plants, a few in one camera view
 
 
@@ -81,7 +83,8 @@ class SpatialIndex:
         ids = np.asarray(ids, dtype=int)
         if len(ids) and ids.max() >= len(self._xy):
             size = max(int(ids.max()) + 1, 2 * len(self._xy))
-            self._xy, self._built_xy = _grown(self._xy, size), _grown(self._built_xy, size)
+            self._xy = grown(self._xy, size, np.nan)
+            self._built_xy = grown(self._built_xy, size, np.nan)
         xy = np.asarray(xy, dtype=float).reshape(-1, 2)
         self._xy[ids] = xy
         built = self._built_xy[ids]
@@ -160,9 +163,3 @@ def _tiles_under(xy: np.ndarray) -> set[tuple[int, int]]:
 def _packed(tiles: np.ndarray) -> np.ndarray:
     """One int64 per tile (k, 2), to compare tiles as numbers."""
     return tiles[:, 0] * (1 << 32) + tiles[:, 1]
-
-
-def _grown(table: np.ndarray, size: int) -> np.ndarray:
-    grown = np.full((size, 2), np.nan)
-    grown[: len(table)] = table
-    return grown
