@@ -8,7 +8,7 @@ import pytest
 
 from agrislam.config import AgrislamConfig, MaintenanceConfig, SensorDefaults
 from agrislam.geometry.noise import SensorModel
-from agrislam.geometry.view_area import ViewArea, log_odds_absent
+from agrislam.geometry.view_area import ViewArea, in_robot_frames, log_odds_absent
 from agrislam.maintenance import Existence
 from agrislam.objects import ObjectTable
 from agrislam.pipeline import run_survey
@@ -152,6 +152,17 @@ def test_binomial_log_odds_and_view_counts():
     poses = np.array([[0.0, 0.0, 0.0], [0.0, 0.0, np.pi]])
     assert area.views(poses, np.array([[1.0, 0.0], [3.0, 0.0]])).tolist() == [1, 0]
 
+
+
+def test_view_counts_are_the_same_in_any_chunking():
+    rng = np.random.default_rng(4)
+    area = ViewArea((0.3, 2.0), (-0.6, 0.6))
+    poses = np.column_stack([rng.uniform(0, 10, (300, 2)), rng.uniform(-np.pi, np.pi, 300)])
+    xy = rng.uniform(-1, 11, (500, 2))
+    brute = [int(area.contains(in_robot_frames(poses, p)).sum()) for p in xy]
+    assert sum(brute) > 500  # most points in view more than once
+    for chunk in (1, 7, 1024):
+        assert area.views(poses, xy, chunk=chunk).tolist() == brute
 
 def _survey(config):
     sim = SimConfig.model_validate(

@@ -15,6 +15,7 @@ Used for plants gone between surveys (prior/changes.py) and for the clutter of o
 from __future__ import annotations
 
 from dataclasses import dataclass
+from itertools import chain
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -39,15 +40,22 @@ class ViewArea:
         # views of headland turns, the only ones of plants at a row's end
         return cls((r_lo, r_hi - margin), (b_lo + turn, b_hi - turn))
 
-    def views(self, poses: np.ndarray, xy: np.ndarray) -> np.ndarray:
-        """(k,) frames (poses (m, 3)) in which each map point (k, 2) was inside the area."""
+    def views(self, poses: np.ndarray, xy: np.ndarray, chunk: int = 1024) -> np.ndarray:
+        """(k,) frames (poses (m, 3)) in which each map point (k, 2) was inside the area;
+        `chunk` points at a time, so that a whole field's (point, near frame) pairs are
+        never held at once (issue 14)."""
         counts = np.zeros(len(xy), dtype=np.int64)
         if not len(poses) or not len(xy):
             return counts
-        near = cKDTree(poses[:, :2]).query_ball_point(xy, self.range[1])
-        for k, frames in enumerate(near):
-            if frames:
-                counts[k] = int(self.contains(in_robot_frames(poses[frames], xy[k])).sum())
+        tree = cKDTree(poses[:, :2])
+        for start in range(0, len(xy), chunk):
+            part = xy[start : start + chunk]
+            near = tree.query_ball_point(part, self.range[1])
+            per_point = np.fromiter(map(len, near), dtype=np.intp, count=len(near))
+            frames = np.fromiter(chain.from_iterable(near), dtype=np.intp, count=per_point.sum())
+            point = np.repeat(np.arange(len(part)), per_point)
+            inside = self.contains(in_robot_frames(poses[frames], part[point]))
+            counts[start : start + len(part)] = np.bincount(point[inside], minlength=len(part))
         return counts
 
     def hits(
