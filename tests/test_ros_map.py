@@ -21,6 +21,7 @@ COLOURS = ["blue", "cyan", "green", "orange", "pink", "red", "yellow"]  # confte
 
 
 def read_ros(path: Path) -> dict[str, Any]:
+    """The last message of each topic (the plants' topic: its one MarkerArray)."""
     with AnyReader([path]) as reader:
         return {
             conn.topic: reader.deserialize(raw, conn.msgtype) for conn, _, raw in reader.messages()
@@ -122,6 +123,30 @@ def test_messages_written_item_by_item_are_the_whole_messages(
             3,
             "visualization_msgs/msg/Marker",
         )
+
+
+def test_a_large_map_goes_out_in_several_marker_arrays(
+    tmp_path: Path, sample_snapshot: MapSnapshot
+) -> None:
+    """Markers split over MarkerArrays of at most `markers_per_message`, in order, at one
+    stamp: together the one MarkerArray a small map gets; only the first clears."""
+    one = tmp_path / "one.mcap"
+    split = tmp_path / "split.mcap"
+    write_map_mcap(sample_snapshot, one, "colour")
+    write_map_mcap(sample_snapshot, split, "colour", markers_per_message=7)
+    with AnyReader([split]) as reader:
+        parts = [
+            (stamp, reader.deserialize(raw, conn.msgtype).markers)
+            for conn, stamp, raw in reader.messages()
+            if conn.topic == "/agrislam/plants"
+        ]
+    whole = read_ros(one)["/agrislam/plants"].markers
+    assert len(parts) == -(-len(whole) // 7) > 1
+    assert {stamp for stamp, _ in parts} == {parts[0][0]}
+    assert all(len(markers) == 7 for _, markers in parts[:-1])
+    markers = [m for _, part in parts for m in part]
+    assert [(m.ns, m.id, m.action) for m in markers] == [(m.ns, m.id, m.action) for m in whole]
+    assert [m.action for m in markers].count(3) == 1
 
 
 def test_mcap_is_a_plain_ros2_recording(tmp_path: Path, sample_snapshot: MapSnapshot) -> None:

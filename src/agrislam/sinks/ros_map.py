@@ -15,6 +15,7 @@ object, id = object id; ``uncertainty``: the 2-sigma position ellipse; ``labels`
 from __future__ import annotations
 
 from collections.abc import Iterator
+from itertools import islice
 from pathlib import Path
 
 import numpy as np
@@ -33,6 +34,7 @@ from agrislam.snapshot import MapSnapshot, Trajectory
 PLANTS_TOPIC = "/agrislam/plants"
 MARKER = {"SPHERE": 2, "CYLINDER": 3, "LINE_LIST": 5, "TEXT_VIEW_FACING": 9}
 ACTION = {"ADD": 0, "DELETEALL": 3}
+MARKERS_PER_MESSAGE = 20_000  # about 7 MB of CDR
 
 
 class _MarkerBuilder:
@@ -196,9 +198,14 @@ def write_map_mcap(
     diameter: float = 0.15,
     labels: bool = True,
     overwrite: bool = False,
+    markers_per_message: int = MARKERS_PER_MESSAGE,
 ) -> Path:
-    """Write the map as a bare MCAP file (ROS 2, CDR): plants as MarkerArray coloured by
-    `attribute` (default: the first discrete one), trajectories as nav_msgs/Path."""
+    """Write the map as a bare MCAP file (ROS 2, CDR): plants as MarkerArrays coloured by
+    `attribute` (default: the first discrete one), trajectories as nav_msgs/Path.
+
+    The markers go out `markers_per_message` to a MarkerArray, in order and at one stamp
+    (only the first clears an older map): a whole field's markers in one message would
+    hold its ~1 KB a plant of CDR at once (issue 14)."""
     path = Path(path)
     if overwrite:
         path.unlink(missing_ok=True)
@@ -210,9 +217,12 @@ def write_map_mcap(
         count = marker_count(snapshot, labels)
         markers = _marker_stream(snapshot, make, attribute, t, frame, diameter, labels)
         empty = make.T[MARKER_ARRAY](markers=[])
-        writer.write(
-            conn, ns, make.serialize_streamed(empty, MARKER_ARRAY, markers, count, MARKER_MSG)
-        )
+        for start in range(0, count, markers_per_message):
+            size = min(markers_per_message, count - start)
+            part = islice(markers, size)
+            writer.write(
+                conn, ns, make.serialize_streamed(empty, MARKER_ARRAY, part, size, MARKER_MSG)
+            )
         for kind, trajectories in (
             ("trajectory", snapshot.trajectories),
             ("dead_reckoning", snapshot.dead_reckoning),
