@@ -153,7 +153,6 @@ def test_binomial_log_odds_and_view_counts():
     assert area.views(poses, np.array([[1.0, 0.0], [3.0, 0.0]])).tolist() == [1, 0]
 
 
-
 def test_view_counts_are_the_same_in_any_chunking():
     rng = np.random.default_rng(4)
     area = ViewArea((0.3, 2.0), (-0.6, 0.6))
@@ -163,6 +162,7 @@ def test_view_counts_are_the_same_in_any_chunking():
     assert sum(brute) > 500  # most points in view more than once
     for chunk in (1, 7, 1024):
         assert area.views(poses, xy, chunk=chunk).tolist() == brute
+
 
 def _survey(config):
     sim = SimConfig.model_validate(
