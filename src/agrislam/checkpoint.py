@@ -45,8 +45,9 @@ from agrislam.world import WorldModel
 
 # raised whenever the state changes shape, so that an older checkpoint is refused, not misread
 # (2: folded poses held between both keyframes of their window, geometry/isam_state.py;
-# 3: retired nodes in geometry/retired.py, frozen keyframes)
-FORMAT = b"agrislam-checkpoint 3"
+# 3: retired nodes in geometry/retired.py, frozen keyframes; 4: per-node integers in
+# geometry/key_table.py)
+FORMAT = b"agrislam-checkpoint 4"
 # the modules a checkpoint's objects may come from
 TRUSTED_MODULES = {"agrislam", "numpy", "collections", "copyreg", "builtins", "pydantic"}
 TRUSTED_MODULES |= {"pydantic_core", "scipy"}

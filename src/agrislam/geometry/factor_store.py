@@ -10,8 +10,9 @@ or an export: they are kept `chunk_rows` rows at a time, the newest chunk in mem
 every full one in an anonymous temporary file (`PayloadChunks`), so that the record of a
 survey costs 28 bytes of memory a factor (issue 14).
 
-The factors touching a node are a linked list through the rows (`_head[key]`, then
-`_next[row, slot]`), unlinked lazily: a walk skips and splices out the dead rows it meets.
+The factors touching a node are a linked list through the rows (`_head[key]`, a
+`KeyTable`, then `_next[row, slot]`), unlinked lazily: a walk skips and splices out the
+dead rows it meets.
 `FactorStore` is a mapping id -> `Factor` (built on access), so the graph's readers see
 the records they always did."""
 
@@ -25,6 +26,8 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+
+from agrislam.geometry.key_table import KeyTable
 
 NONE = -1
 DEAD = -1
@@ -137,7 +140,7 @@ class FactorStore(MutableMapping[int, Factor]):
         self._value_len = np.zeros(capacity, dtype=np.int8)
         self._cov_dim = np.zeros(capacity, dtype=np.int8)  # 0: a scalar, the payload's first
         self._next = np.full((capacity, MAX_KEYS), NONE, dtype=np.int32)
-        self._head: dict[int, int] = {}  # node key -> its latest factor's row
+        self._head = KeyTable()  # node key -> its latest factor's row
 
     def __getstate__(self) -> dict[str, Any]:
         state = self.__dict__.copy()
@@ -225,6 +228,8 @@ class FactorStore(MutableMapping[int, Factor]):
             if self._live(row):
                 found.append(row)
                 previous = row
+            elif previous == NONE and following == NONE:  # the list held dead rows only
+                self._head.pop(key, None)
             elif previous == NONE:  # splice the dead row out of the list
                 self._head[key] = following
             else:

@@ -14,11 +14,12 @@ import numpy as np
 from agrislam.config import SlamConfig
 from agrislam.geometry.factor_store import Factor, FactorStore
 from agrislam.geometry.gnss import gnss_factor
+from agrislam.geometry.key_table import NODE_BITS
 from agrislam.geometry.noise import gaussian, one_direction, robust, row_direction, row_normal
 from agrislam.geometry.object_nodes import ObjectNodes
 
 # key layout: one symbol letter per node kind; robot r's pose i is x(r * POSES_PER_ROBOT + i)
-POSES_PER_ROBOT = 1 << 40
+POSES_PER_ROBOT = 1 << NODE_BITS
 POSE, OBJECT, ROW = "x", "l", "r"
 
 # factor kinds

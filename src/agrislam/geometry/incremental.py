@@ -66,6 +66,7 @@ from agrislam.geometry.isam_state import (
     restore_isam2,
     serialised_isam2,
 )
+from agrislam.geometry.key_table import KeyTable
 from agrislam.geometry.retired import Anchored, FrozenKeyframes, RetiredObjects, RetiredPoses
 from agrislam.geometry.se2 import between, compose, pose_uncertainty_at, rotation, to_robot_frame
 
@@ -93,7 +94,8 @@ class IncrementalBackend(BackendBase):
         self._retired_objects = RetiredObjects()
         self._retired_poses = RetiredPoses()  # each pose between its window's keyframes
         self._keyframes: dict[str, list[int]] = {}  # robot -> its keyframes, oldest first
-        self._last_seen: dict[int, tuple[str, int]] = {}  # object key -> (robot, step)
+        self._last_seen = KeyTable()  # object key -> the pose it was last seen from
+        self._seen_step = KeyTable()  # object key -> the step it was last seen at
         self._cov_cache: dict[int, tuple[int, np.ndarray]] = {}  # key -> (step, covariance)
         self._step = 0
         self._window_start = 0
@@ -166,7 +168,7 @@ class IncrementalBackend(BackendBase):
         if factor.keys and key_kind(factor.keys[0]) == POSE and len(factor.keys) == 2:
             obj = factor.keys[1]
             if key_kind(obj) != POSE:
-                self._last_seen[obj] = (self.graph.robot_of(factor.keys[0]), self._step)
+                self._last_seen[obj], self._seen_step[obj] = factor.keys[0], self._step
         self._pending.add(make_factor(factor, self.slam), Entry(factor.keys, fid))
 
     def _remove(self, fid: int) -> None:
@@ -194,7 +196,7 @@ class IncrementalBackend(BackendBase):
             for anchor in anchors:
                 self._push_anchor(into, anchor)
         self._pending.drop_node(key)
-        for table in (self._guess, self._last_seen, self._cov_cache):
+        for table in (self._guess, self._last_seen, self._seen_step, self._cov_cache):
             table.pop(key, None)
         self._live.discard(key)
         self._permanent.discard(key)
@@ -368,8 +370,10 @@ class IncrementalBackend(BackendBase):
             if key_kind(key) == POSE:
                 driven.setdefault(self.graph.robot_of(key), []).append(key)
                 continue
-            robot, step = self._last_seen.get(key, (next(iter(self._keyframes)), self._step))
-            frames = self._keyframes[robot]
+            pose, step = self._last_seen.get(key), self._seen_step.get(key, self._step)
+            frames = self._keyframes[
+                self.graph.robot_of(pose) if pose else next(iter(self._keyframes))
+            ]
             keyframe = frames[-2] if step < half and len(frames) > 1 else frames[-1]
             if not point.exists(keyframe):
                 keyframe = frames[-1]

@@ -18,6 +18,7 @@ import gtsam
 import numpy as np
 
 from agrislam.geometry.batch import value_array, values_at
+from agrislam.geometry.key_table import KeyTable
 from agrislam.geometry.noise import gaussian, relative_to_range_bearing
 from agrislam.geometry.se2 import (
     between,
@@ -102,7 +103,7 @@ class Retired:
 
     def __init__(self, dim: int) -> None:
         self.dim = dim
-        self._row: dict[int, int] = {}
+        self._row = KeyTable()  # node key -> its row
         self._n = 0
         self._columns: dict[str, np.ndarray] = {
             "keys": np.zeros(0, dtype=np.uint64),
@@ -133,7 +134,7 @@ class Retired:
 
     def rows(self, keys: Iterable[int]) -> np.ndarray:
         """The row of each key, -1 for a node not retired."""
-        return np.fromiter((self._row.get(k, -1) for k in keys), dtype=np.intp)
+        return self._row.get_many(keys)
 
     def row(self, key: int) -> int | None:
         return self._row.get(key)

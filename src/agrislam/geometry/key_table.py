@@ -1,0 +1,85 @@
+"""A non-negative integer per node of the survey graph, held in arrays (DESIGN.md "State
+layout"): a dict entry costs about 100 bytes a node, and a field of 100,000 plants has
+several hundred thousand nodes (issue 14).
+
+A key (GTSAM's symbol, geometry/graph.py's layout) numbers its node densely in its low
+NODE_BITS bits within its kind and robot, the bits above: one array per kind and robot,
+indexed by that number, MISSING where the table holds nothing."""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+
+import numpy as np
+
+from agrislam.growing import grown
+
+NODE_BITS = 40  # a node's number within its kind and robot (graph.POSES_PER_ROBOT)
+MISSING = -1
+_NUMBER = (1 << NODE_BITS) - 1
+
+
+class KeyTable:
+    """key -> int >= 0, read and written as a dict's `get`, `pop`, `in` and `[]`; `get_many`
+    reads many keys at once."""
+
+    def __init__(self) -> None:
+        self._columns: dict[int, np.ndarray] = {}  # a key's bits above NODE_BITS -> values
+        self._len = 0
+
+    def __len__(self) -> int:
+        return self._len
+
+    def __contains__(self, key: object) -> bool:
+        return isinstance(key, (int, np.integer)) and self.get(int(key)) is not None
+
+    def __getitem__(self, key: int) -> int:
+        value = self.get(key)
+        if value is None:
+            raise KeyError(key)
+        return value
+
+    def get(self, key: int, default: int | None = None) -> int | None:
+        key = int(key)
+        column = self._columns.get(key >> NODE_BITS)
+        number = key & _NUMBER
+        if column is None or number >= len(column) or column[number] == MISSING:
+            return default
+        return int(column[number])
+
+    def __setitem__(self, key: int, value: int) -> None:
+        if value < 0:
+            raise ValueError(f"a key table holds integers >= 0, not {value}")
+        key = int(key)
+        high, number = key >> NODE_BITS, key & _NUMBER
+        column = self._columns.get(high)
+        if column is None or number >= len(column):
+            old = column if column is not None else np.empty(0, dtype=np.int64)
+            column = self._columns[high] = grown(old, max(number + 1, 2 * len(old), 16), MISSING)
+        self._len += int(column[number] == MISSING)
+        column[number] = value
+
+    def pop(self, key: int, default: int | None = None) -> int | None:
+        value = self.get(key)
+        if value is None:
+            return default
+        key = int(key)
+        self._columns[key >> NODE_BITS][key & _NUMBER] = MISSING
+        self._len -= 1
+        return value
+
+    def get_many(self, keys: Iterable[int] | np.ndarray) -> np.ndarray:
+        """(k,) the value of each key, MISSING where there is none."""
+        keys = np.fromiter(keys, dtype=np.uint64) if not isinstance(keys, np.ndarray) else keys
+        keys = keys.astype(np.uint64, copy=False)
+        out = np.full(len(keys), MISSING, dtype=np.int64)
+        high = keys >> np.uint64(NODE_BITS)
+        number = (keys & np.uint64(_NUMBER)).astype(np.int64)
+        for h in np.unique(high).tolist():
+            column = self._columns.get(h)
+            if column is None:
+                continue
+            at = np.flatnonzero(high == h)
+            inside = number[at] < len(column)
+            out[at[inside]] = column[number[at[inside]]]
+        return out
