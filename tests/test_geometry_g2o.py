@@ -60,7 +60,7 @@ def test_round_trip_keeps_every_node_and_factor(tmp_path):
     write_g2o(g, path)
     back = read_g2o(path)
     assert list(back.graph.robots) == ["a", "b"]
-    assert back.graph.robots["b"].times == [0.5, 1.0, 2.0]
+    assert back.graph.robots["b"].times.tolist() == [0.5, 1.0, 2.0]
     assert sorted(back.graph.objects) == list(range(5))
     assert sorted(back.graph.rows) == [0, 1]
     assert back.graph.row_of == g.graph.row_of

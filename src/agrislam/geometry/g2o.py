@@ -50,7 +50,6 @@ from agrislam.geometry.graph import (
     key_index,
     key_kind,
     object_key,
-    pose_key,
     row_key,
 )
 from agrislam.geometry.noise import (
@@ -240,8 +239,7 @@ class _Reader:
         robots = self.robots or [(DEFAULT_ROBOT, min(self.se2, default=0), len(self.se2))]
         for name, first, count in robots:
             chain = self.graph.add_robot(name, math.nan)
-            chain.keys.clear()
-            chain.times.clear()
+            chain.clear()
             ids = list(range(first, first + count)) if self.robots else sorted(self.se2)
             times = self.times.get(name, [math.nan] * len(ids))
             if len(times) != len(ids):
@@ -249,9 +247,7 @@ class _Reader:
             for vid, t in zip(ids, times, strict=True):
                 if vid not in self.se2:
                     raise ValueError(f"{self.path}: robot {name}: no VERTEX_SE2 {vid}")
-                key = pose_key(chain.index, len(chain.keys))
-                chain.keys.append(key)
-                chain.times.append(t)
+                key = chain.add(t)
                 self.key[vid] = key
                 self.values[key] = self.se2[vid]
         for vid, xy in self.xy.items():

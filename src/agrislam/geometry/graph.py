@@ -5,8 +5,9 @@ rewrite, the global refinement solves and g2o files hold."""
 from __future__ import annotations
 
 from collections import Counter
-from collections.abc import Iterable
-from dataclasses import dataclass, field
+from collections.abc import Iterable, Iterator, Sequence
+from dataclasses import dataclass
+from typing import overload
 
 import gtsam
 import numpy as np
@@ -17,6 +18,7 @@ from agrislam.geometry.gnss import gnss_factor
 from agrislam.geometry.key_table import NODE_BITS
 from agrislam.geometry.noise import gaussian, one_direction, robust, row_direction, row_normal
 from agrislam.geometry.object_nodes import ObjectNodes
+from agrislam.growing import GrowingRows
 
 # key layout: one symbol letter per node kind; robot r's pose i is x(r * POSES_PER_ROBOT + i)
 POSES_PER_ROBOT = 1 << NODE_BITS
@@ -70,11 +72,59 @@ def robot_index_of(pose: int) -> int:
     return key_index(pose) // POSES_PER_ROBOT
 
 
-@dataclass(slots=True)
+class PoseKeys(Sequence[int]):
+    """A robot's pose keys, 0 .. n-1 in the order driven: computed, not stored (the key
+    layout above numbers them in a row)."""
+
+    __slots__ = ("_first", "_times")
+
+    def __init__(self, index: int, times: GrowingRows) -> None:
+        self._first, self._times = pose_key(index, 0), times
+
+    def __len__(self) -> int:
+        return len(self._times)
+
+    @overload
+    def __getitem__(self, i: int) -> int: ...
+    @overload
+    def __getitem__(self, i: slice) -> list[int]: ...
+    def __getitem__(self, i: int | slice) -> int | list[int]:
+        if isinstance(i, slice):
+            return [self._first + n for n in range(len(self))[i]]
+        return self._first + range(len(self))[i]
+
+    def __iter__(self) -> Iterator[int]:
+        return iter(range(self._first, self._first + len(self)))
+
+    def __contains__(self, key: object) -> bool:
+        return isinstance(key, (int, np.integer)) and 0 <= int(key) - self._first < len(self)
+
+
 class RobotChain:
-    index: int
-    times: list[float] = field(default_factory=list)
-    keys: list[int] = field(default_factory=list)
+    """A robot's poses as arrays: pose i has key `keys[i]` and time `times[i]`."""
+
+    __slots__ = ("_times", "index")
+
+    def __init__(self, index: int) -> None:
+        self.index = index
+        self._times = GrowingRows()
+
+    @property
+    def times(self) -> np.ndarray:
+        """(n,) the poses' times (a view: copy it to keep it)."""
+        return self._times.array
+
+    @property
+    def keys(self) -> PoseKeys:
+        return PoseKeys(self.index, self._times)
+
+    def add(self, t: float) -> int:
+        """The next pose, at time t; its key."""
+        self._times.append(float(t))
+        return self.keys[-1]
+
+    def clear(self) -> None:
+        self._times = GrowingRows()
 
 
 @dataclass(slots=True)
@@ -115,10 +165,7 @@ class SurveyGraph:
         return chain
 
     def add_pose(self, chain: RobotChain, t: float) -> int:
-        key = pose_key(chain.index, len(chain.keys))
-        chain.times.append(float(t))
-        chain.keys.append(key)
-        return key
+        return chain.add(t)
 
     def add_object(self, object_id: int, xy: np.ndarray) -> int:
         if object_id in self.objects:
