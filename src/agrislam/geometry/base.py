@@ -269,8 +269,7 @@ class BackendBase:
         )
 
     def rows_of(self, object_ids: np.ndarray) -> np.ndarray:
-        row_of = self.graph.row_of
-        return np.array([row_of.get(int(i), -1) for i in object_ids], dtype=np.int64)
+        return self.graph.row_of.get_many(np.asarray(object_ids, dtype=np.int64))
 
     # ------------------------------------------------------------------- common
     def load(self, graph: SurveyGraph, values: dict[int, np.ndarray]) -> None:

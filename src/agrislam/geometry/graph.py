@@ -15,7 +15,7 @@ import numpy as np
 from agrislam.config import SlamConfig
 from agrislam.geometry.factor_store import Factor, FactorStore
 from agrislam.geometry.gnss import gnss_factor
-from agrislam.geometry.key_table import NODE_BITS
+from agrislam.geometry.key_table import NODE_BITS, KeyTable
 from agrislam.geometry.noise import gaussian, one_direction, robust, row_direction, row_normal
 from agrislam.geometry.object_nodes import ObjectNodes
 from agrislam.growing import GrowingRows
@@ -142,7 +142,7 @@ class SurveyGraph:
         self.rows: dict[int, RowNode] = {}
         # factor id -> Factor, as rows of arrays; what it cannot spill to disk is an issue
         self.factors = FactorStore(issues=issues)
-        self.row_of: dict[int, int] = {}  # object id -> row id of its row constraint
+        self.row_of = KeyTable()  # object id -> row id of its row constraint
 
     # ---------------------------------------------------------------- nodes
     def robot(self, robot: str) -> RobotChain:

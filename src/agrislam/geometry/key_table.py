@@ -4,7 +4,8 @@ several hundred thousand nodes (issue 14).
 
 A key (GTSAM's symbol, geometry/graph.py's layout) numbers its node densely in its low
 NODE_BITS bits within its kind and robot, the bits above: one array per kind and robot,
-indexed by that number, MISSING where the table holds nothing."""
+indexed by that number, MISSING where the table holds nothing. A plain id (below 2^40)
+is a key of its own: the graph's table of each object's row is keyed by object id."""
 
 from __future__ import annotations
 
