@@ -21,6 +21,11 @@ def test_a_key_table_reads_and_writes_as_a_dict_does():
         for k in keys:
             assert (k in table) == (k in reference)
             assert table.get(k) == reference.get(k)
+    assert dict(table.items()) == reference
+    copy = KeyTable()
+    for key, value in reference.items():
+        copy[key] = value
+    assert copy == table and (len(reference) == 0 or copy != KeyTable())
     many = table.get_many(np.array([*keys, object_key(10**6)], dtype=np.uint64))
     assert many.tolist() == [reference.get(k, MISSING) for k in keys] + [MISSING]
 

@@ -1,18 +1,43 @@
-"""The cyclic garbage collector kept off the step path (issue 14).
+"""Memory housekeeping kept off the step path (issue 14).
 
 CPython's full collection scans every object it tracks, so with a large map's state it
 stops the run for as long as that takes: 30-130 ms on a 10,000-plant survey, at a step
 no one chooses. During a run, what has survived so far is moved every `every` frames to
 the collector's permanent generation (`gc.freeze`): reference counting frees it as
 always, and a full collection scans only what is newer. The run's end hands it back
-(`gc.unfreeze`), so a cycle that died frozen is collected then."""
+(`gc.unfreeze`), so a cycle that died frozen is collected then.
+
+At the same frames the C heap's free pages go back to the system (`release_free_heap`):
+the blocks GTSAM and numpy free between live ones otherwise stay resident, about 1.7 KB
+a plant of a survey's peak memory (bench_scale)."""
 
 from __future__ import annotations
 
+import ctypes
+import functools
 import gc
+from collections.abc import Callable
 from types import TracebackType
 
 FREEZE_EVERY = 500  # frames
+
+
+@functools.cache
+def _malloc_trim() -> Callable[[int], int] | None:
+    """glibc's malloc_trim, or None where the C library has none (macOS, musl)."""
+    try:
+        return getattr(ctypes.CDLL(None), "malloc_trim", None)  # the process's own symbols
+    except OSError:
+        return None
+
+
+def release_free_heap() -> bool:
+    """Hand the C heap's free pages back to the system; False where that cannot be done."""
+    trim = _malloc_trim()
+    if trim is None:
+        return False
+    trim(0)
+    return True
 
 
 class PacedCollector:
@@ -30,6 +55,7 @@ class PacedCollector:
         self._frames += 1
         if self._frames % self.every == 0:
             gc.freeze()
+            release_free_heap()
 
     def __exit__(
         self,

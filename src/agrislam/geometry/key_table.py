@@ -9,7 +9,7 @@ is a key of its own: the graph's table of each object's row is keyed by object i
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator
 
 import numpy as np
 
@@ -39,6 +39,17 @@ class KeyTable:
         if value is None:
             raise KeyError(key)
         return value
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, KeyTable):
+            return NotImplemented
+        return dict(self.items()) == dict(other.items())
+
+    def items(self) -> Iterator[tuple[int, int]]:
+        """(key, value) of every key held."""
+        for high, column in self._columns.items():
+            for number in np.flatnonzero(column != MISSING).tolist():
+                yield (high << NODE_BITS) | number, int(column[number])
 
     def get(self, key: int, default: int | None = None) -> int | None:
         key = int(key)
