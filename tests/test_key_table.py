@@ -28,6 +28,8 @@ def test_a_key_table_reads_and_writes_as_a_dict_does():
     assert copy == table and (len(reference) == 0 or copy != KeyTable())
     many = table.get_many(np.array([*keys, object_key(10**6)], dtype=np.uint64))
     assert many.tolist() == [reference.get(k, MISSING) for k in keys] + [MISSING]
+    assert table.get_many(keys).tolist() == many[:-1].tolist()  # a few: one by one
+    assert table.get_many(keys * 10).tolist() == many[:-1].tolist() * 10  # many: at once
 
 
 def test_robots_and_kinds_of_the_same_number_are_distinct_nodes():

@@ -17,6 +17,7 @@ from agrislam.growing import grown
 
 NODE_BITS = 40  # a node's number within its kind and robot (graph.POSES_PER_ROBOT)
 MISSING = -1
+FEW = 16  # keys `get_many` looks up one by one (numpy's overhead costs more)
 _NUMBER = (1 << NODE_BITS) - 1
 
 
@@ -82,12 +83,16 @@ class KeyTable:
 
     def get_many(self, keys: Iterable[int] | np.ndarray) -> np.ndarray:
         """(k,) the value of each key, MISSING where there is none."""
-        keys = np.fromiter(keys, dtype=np.uint64) if not isinstance(keys, np.ndarray) else keys
-        keys = keys.astype(np.uint64, copy=False)
+        if not isinstance(keys, np.ndarray):
+            keys = list(keys)
+            if len(keys) <= FEW:
+                return np.array([self.get(k, MISSING) for k in keys], dtype=np.int64)
+        keys = np.asarray(keys).astype(np.uint64, copy=False)
         out = np.full(len(keys), MISSING, dtype=np.int64)
         high = keys >> np.uint64(NODE_BITS)
         number = (keys & np.uint64(_NUMBER)).astype(np.int64)
-        for h in np.unique(high).tolist():
+        kinds = [int(high[0])] if len(high) and (high == high[0]).all() else np.unique(high)
+        for h in np.asarray(kinds).tolist():
             column = self._columns.get(h)
             if column is None:
                 continue
