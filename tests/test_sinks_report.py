@@ -174,3 +174,16 @@ def test_a_few_trees_over_a_park_are_drawn_larger_than_a_dense_field():
     assert park >= 20.0  # a dot of 5 pt and more: its colour can be read
     assert 2.0 <= huge < park
     assert field >= 8.0
+
+
+def test_a_large_interest_surface_is_drawn_as_block_means():
+    from agrislam.sinks.report import coarsened
+
+    values = np.arange(7 * 10, dtype=np.float32).reshape(7, 10)
+    same, block = coarsened(values, most=10)
+    assert block == 1 and same is values
+    means, block = coarsened(values, most=4)
+    assert block == 3 and means.shape == (3, 4)  # 7 x 10 cells padded to 9 x 12
+    assert means[0, 0] == values[:3, :3].mean()
+    assert means[2, 3] == values[6, 9]  # the corner block holds the edge value only
+    assert means.dtype == np.float32

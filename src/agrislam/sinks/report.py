@@ -44,6 +44,7 @@ MAX_TOP_ATTRIBUTES = 3
 MAX_STEP_BINS = 600
 ROW_OVERHANG_M = 0.3  # a row line runs this far past its first and last plant
 INTEREST_CMAP = "YlOrRd"
+DISPLAY_CELLS = 1500  # interest surface cells a panel shows a side at most (~1,000 pixels)
 HEADLINE_SEPARATOR = "   ·   "
 SOURCE_STYLE = {  # trajectory kind -> line style
     "truth": {"color": "black", "lw": 2.2, "alpha": 0.45, "ls": "-"},
@@ -405,6 +406,21 @@ def _colorbar(ax: Axes, mappable: Any, label: str) -> None:
     ax.figure.colorbar(mappable, cax=cax, label=label)
 
 
+def coarsened(values: np.ndarray, most: int = DISPLAY_CELLS) -> tuple[np.ndarray, int]:
+    """A grid's means over square blocks of `block` cells a side (returned with it), at
+    most `most` blocks a side: a whole field's interest surface holds millions of cells,
+    a panel shows about a thousand pixels a side, and drawing every cell cost memory in
+    proportion to the field (issue 14). The blocks of the last row and column reach past
+    the grid, holding its edge values."""
+    block = -(-max(values.shape) // most)
+    if block <= 1:
+        return values, 1
+    ny, nx = (-(-n // block) * block for n in values.shape)
+    padded = np.pad(values, ((0, ny - values.shape[0]), (0, nx - values.shape[1])), mode="edge")
+    means = padded.reshape(ny // block, block, nx // block, block).mean(axis=(1, 3))
+    return means.astype(np.float32), block
+
+
 def _draw_interest(
     ax: Axes, snapshot: MapSnapshot, extent: tuple[float, float, float, float]
 ) -> None:
@@ -413,10 +429,12 @@ def _draw_interest(
     norm = Normalize(0.0, 1.0)
     surface = snapshot.interest_surface
     if surface is not None:
+        values, block = coarsened(surface.values)
+        x0, y0, res = surface.x0, surface.y0, surface.resolution * block
         ax.imshow(
-            surface.values,
+            values,
             origin="lower",
-            extent=surface.extent,
+            extent=(x0, x0 + values.shape[1] * res, y0, y0 + values.shape[0] * res),
             cmap=INTEREST_CMAP,
             norm=norm,
             interpolation="bilinear",
