@@ -189,12 +189,13 @@ def test_continuous_and_no_attribute(snapshot_factory: Callable[..., MapSnapshot
 # ---------------------------------------------------------------------------- Foxglove
 
 
-def read_foxglove(path: Path) -> dict[str, Any]:
-    """Decode every message with the protobuf schema stored in the MCAP itself."""
+def foxglove_messages(path: Path) -> list[tuple[str, int, str, Any]]:
+    """(topic, log time, schema name, message) of every message, decoded with the protobuf
+    schema stored in the MCAP itself."""
     from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
     from mcap.reader import make_reader
 
-    out = {}
+    out = []
     with path.open("rb") as f:
         for schema, channel, message in make_reader(f).iter_messages():
             assert schema.encoding == "protobuf" and channel.message_encoding == "protobuf"
@@ -202,8 +203,13 @@ def read_foxglove(path: Path) -> dict[str, Any]:
             for fd in descriptor_pb2.FileDescriptorSet.FromString(schema.data).file:
                 pool.Add(fd)
             cls = message_factory.GetMessageClass(pool.FindMessageTypeByName(schema.name))
-            out[channel.topic] = (schema.name, cls.FromString(message.data))
+            out.append((channel.topic, message.log_time, schema.name, cls.FromString(message.data)))
     return out
+
+
+def read_foxglove(path: Path) -> dict[str, Any]:
+    """The last message of each topic: (schema name, message)."""
+    return {topic: (name, msg) for topic, _, name, msg in foxglove_messages(path)}
 
 
 def test_foxglove_scene(tmp_path: Path, sample_snapshot: MapSnapshot) -> None:
@@ -249,6 +255,21 @@ def test_foxglove_scene(tmp_path: Path, sample_snapshot: MapSnapshot) -> None:
     with pytest.raises(FileExistsError):
         write_foxglove_mcap(snap, path)  # no silent overwrite
     write_foxglove_mcap(snap, path, overwrite=True)
+
+
+def test_foxglove_plants_of_a_large_map_go_out_in_several_scene_updates(
+    tmp_path: Path, sample_snapshot: MapSnapshot
+) -> None:
+    pytest.importorskip("foxglove")
+    from agrislam.sinks.foxglove import write_foxglove_mcap
+
+    path = write_foxglove_mcap(sample_snapshot, tmp_path / "s.mcap", entities_per_message=7)
+    parts = [
+        (t, m.entities) for topic, t, _, m in foxglove_messages(path) if topic == "/agrislam/plants"
+    ]
+    ids = [str(i) for i in sample_snapshot.objects.ids]
+    assert len(parts) == -(-len(ids) // 7) > 1 and len({t for t, _ in parts}) == 1
+    assert [e.id for _, entities in parts for e in entities] == ids
 
 
 def test_foxglove_plants_encoded_entity_by_entity(

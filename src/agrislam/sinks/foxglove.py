@@ -13,6 +13,7 @@ Foxglove lists when a plant is clicked), ``/agrislam/rows`` (SceneUpdate, the ro
 from __future__ import annotations
 
 from collections.abc import Iterable, Iterator
+from itertools import islice
 from pathlib import Path
 from typing import Any
 
@@ -24,6 +25,7 @@ from agrislam.sinks.scene import covariance_ellipses, plant_style, row_segments,
 from agrislam.snapshot import MapSnapshot
 
 FRAME = "map"
+ENTITIES_PER_MESSAGE = 10_000  # plants a SceneUpdate holds
 
 
 def _sdk() -> tuple[Any, Any, Any]:
@@ -141,13 +143,16 @@ def write_foxglove_mcap(
     diameter: float = 0.15,
     stamp: float | None = None,
     overwrite: bool = False,
+    entities_per_message: int = ENTITIES_PER_MESSAGE,
 ) -> Path:
-    """Write the map as an MCAP file of Foxglove schemas (see the module docstring)."""
+    """Write the map as an MCAP file of Foxglove schemas (see the module docstring). The
+    plants go out `entities_per_message` to a SceneUpdate, at one time: one message of a
+    whole field's entities would be held at once (issue 14)."""
     foxglove, channels, m = _sdk()
     path = Path(path)
     t = snapshot_time(snapshot) if stamp is None else stamp
     ts, log_time = _timestamp(m, t), round(t * 1e9)
-    plants = scene_update_bytes(plant_entities(snapshot, attribute, diameter, t))
+    plants = plant_entities(snapshot, attribute, diameter, t)
     rows = [
         m.SceneEntity(
             timestamp=ts,
@@ -171,7 +176,9 @@ def write_foxglove_mcap(
         channel = foxglove.Channel(
             "/agrislam/plants", message_encoding=schema.encoding, schema=schema, context=context
         )
-        channel.log(bytes(plants), log_time=log_time)
+        for _ in range(0, max(len(snapshot.objects), 1), entities_per_message):  # empty: one
+            part = scene_update_bytes(islice(plants, entities_per_message))
+            channel.log(bytes(part), log_time=log_time)
         if rows:
             rows_channel = channels.SceneUpdateChannel("/agrislam/rows", context=context)
             rows_channel.log(m.SceneUpdate(entities=rows), log_time=log_time)
