@@ -89,10 +89,12 @@ class KeyTable:
                 return np.array([self.get(k, MISSING) for k in keys], dtype=np.int64)
         keys = np.asarray(keys).astype(np.uint64, copy=False)
         out = np.full(len(keys), MISSING, dtype=np.int64)
+        if not len(keys):
+            return out
         high = keys >> np.uint64(NODE_BITS)
         number = (keys & np.uint64(_NUMBER)).astype(np.int64)
-        kinds = [int(high[0])] if len(high) and (high == high[0]).all() else np.unique(high)
-        for h in np.asarray(kinds).tolist():
+        kinds = high[:1] if (high == high[0]).all() else np.unique(high)  # mostly one kind
+        for h in kinds.tolist():
             column = self._columns.get(h)
             if column is None:
                 continue
