@@ -72,7 +72,7 @@ def main() -> None:
 
     from agrislam import pipeline
     from agrislam.config import AgrislamConfig, OutputsConfig
-    from agrislam.evaluation import truth_trajectories, write_metrics
+    from agrislam.evaluation import write_metrics
     from agrislam.sinks import csv, foxglove, report, ros_map
     from agrislam.sources import open_source
     from agrislam.sources.simulated import simulation_uri
@@ -98,7 +98,7 @@ def main() -> None:
     ]
     if importlib.util.find_spec("foxglove") is not None:
         writers.append(("map_foxglove.mcap", lambda p: foxglove.write_foxglove_mcap(snapshot, p)))
-    trajectories = truth_trajectories(pipeline.Truth().poses)
+    trajectories = pipeline.Truth().trajectories()
     writers.append(
         (
             "report.png",

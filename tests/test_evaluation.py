@@ -14,8 +14,10 @@ from agrislam.evaluation import (
     print_metrics,
     rigid_fit,
     truth_at,
+    truth_trajectories,
     write_metrics,
 )
+from agrislam.ground_truth import TruthObjects
 from agrislam.records import TruthObject, TruthPose
 from agrislam.snapshot import MapSnapshot, ObjectMap, Trajectory
 
@@ -89,6 +91,22 @@ def test_perfect_estimate_scores_perfectly():
         assert m["trajectory"][kind]["rms_heading"] == 0.0
         assert m["trajectory"][kind]["n"] == 10
     assert m["alignment"] == {"applied": False}
+
+
+def test_truth_as_arrays_scores_as_the_records_do():
+    """The pipeline hands evaluate a TruthObjects table and each robot's true trajectory:
+    the same metrics as the records they came from."""
+    truth = _truth()
+    later = TruthObject("p3", truth[3].xy + 0.05, {"colour": "red", "size": "big"})
+    snap = _snapshot(truth, np.array([o.xy for o in truth]) + 0.02, wrong_size=(1, 5))
+    records = evaluate(snap, [*truth, later], _truth_poses(), align=True)
+    tables = evaluate(
+        snap,
+        TruthObjects.of([*truth, later]),
+        truth_trajectories(_truth_poses()),
+        align=True,
+    )
+    assert tables == records and records["attributes"]["size"]["accuracy"] < 1
 
 
 def test_shifted_estimate_scores_the_shift_and_nothing_after_alignment():

@@ -200,9 +200,11 @@ def test_truth_trajectories_straight_from_the_arrays():
 
     truth = Truth()
     rng = np.random.default_rng(1)
-    for t, robot in [(0.0, "a"), (2.0, "b"), (1.0, "a"), (1.0, "a"), (0.5, "b"), (3.0, "a")]:
-        truth.add_pose(TruthPose(t=t, robot=robot, pose=rng.normal(size=3)))
-    got, expected = truth.trajectories(), truth_trajectories(truth.poses)
+    times = [(0.0, "a"), (2.0, "b"), (1.0, "a"), (1.0, "a"), (0.5, "b"), (3.0, "a")]
+    records = [TruthPose(t=t, robot=robot, pose=rng.normal(size=3)) for t, robot in times]
+    for record in records:
+        truth.add_pose(record)
+    got, expected = truth.trajectories(), truth_trajectories(records)
     assert list(got) == list(expected) == ["a", "b"]
     for robot, trajectory in expected.items():
         np.testing.assert_array_equal(got[robot].t, trajectory.t, strict=True)

@@ -47,7 +47,7 @@ from agrislam.world import WorldModel
 # (2: folded poses held between both keyframes of their window, geometry/isam_state.py;
 # 3: retired nodes in geometry/retired.py, frozen keyframes; 4: per-node integers in
 # geometry/key_table.py)
-FORMAT = b"agrislam-checkpoint 4"
+FORMAT = b"agrislam-checkpoint 5"
 # the modules a checkpoint's objects may come from
 TRUSTED_MODULES = {"agrislam", "numpy", "collections", "copyreg", "builtins", "pydantic"}
 TRUSTED_MODULES |= {"pydantic_core", "scipy"}

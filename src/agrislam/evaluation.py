@@ -20,6 +20,7 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from agrislam.geometry.se2 import rotation, wrap_angle
+from agrislam.ground_truth import TruthObjects
 from agrislam.records import TruthObject, TruthPose
 from agrislam.snapshot import MapSnapshot, Trajectory
 
@@ -85,7 +86,12 @@ def _rms(x: np.ndarray) -> float | None:
     return float(np.sqrt(np.mean(np.square(x)))) if len(x) else None
 
 
-def _truth_tracks(poses: Iterable[TruthPose]) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+def _truth_tracks(
+    poses: Iterable[TruthPose] | Mapping[str, Trajectory],
+) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """Each robot's true (times, poses) in time order; trajectories are taken as they are."""
+    if isinstance(poses, Mapping):
+        return {robot: (track.t, track.poses) for robot, track in poses.items()}
     by_robot: dict[str, list[TruthPose]] = {}
     for p in poses:
         by_robot.setdefault(p.robot, []).append(p)
@@ -185,26 +191,23 @@ def _group_max_and_size(group: np.ndarray, counts: np.ndarray) -> tuple[np.ndarr
 
 
 def _attribute_scores(
-    snapshot: MapSnapshot, matched_est: np.ndarray, truths: list[TruthObject]
+    snapshot: MapSnapshot, matched_est: np.ndarray, truth: TruthObjects, matched_rows: np.ndarray
 ) -> dict[str, Any]:
     out: dict[str, Any] = {}
     schema = snapshot.schema
     for name, probs in snapshot.objects.discrete.items():
         values = schema.discrete[name].values if schema and name in schema.discrete else None
-        hits = [
-            values[int(np.argmax(probs[e]))] == t.attributes[name]
-            for e, t in zip(matched_est, truths, strict=True)
-            if name in t.attributes and values is not None
-        ]
-        out[name] = {"accuracy": float(np.mean(hits)) if hits else None, "n": len(hits)}
+        known = truth.text(name, matched_rows)
+        has = known != None  # noqa: E711 (elementwise on an object array)
+        hits = np.zeros(0, bool)
+        if values is not None:
+            guessed = np.asarray(values, dtype=object)[np.argmax(probs[matched_est[has]], axis=1)]
+            hits = guessed == known[has]
+        out[name] = {"accuracy": float(np.mean(hits)) if len(hits) else None, "n": len(hits)}
     for name, (mean, _) in snapshot.objects.continuous.items():
-        err = np.array(
-            [
-                mean[e] - float(t.attributes[name])
-                for e, t in zip(matched_est, truths, strict=True)
-                if name in t.attributes
-            ]
-        )
+        known = truth.values(name, matched_rows)
+        has = np.isfinite(known)
+        err = mean[matched_est[has]] - known[has]
         out[name] = {
             "rms": _rms(err),
             "bias": float(err.mean()) if len(err) else None,
@@ -274,8 +277,8 @@ def _icp(est: np.ndarray, truth: np.ndarray, radius: float) -> tuple[float, np.n
 
 def evaluate(
     snapshot: MapSnapshot,
-    truth_objects: Iterable[TruthObject],
-    truth_poses: Iterable[TruthPose] = (),
+    truth_objects: TruthObjects | Iterable[TruthObject],
+    truth_poses: Mapping[str, Trajectory] | Iterable[TruthPose] = (),
     associations: Sequence[tuple[str | None, int]] | None = None,
     *,
     radius: float | None = None,
@@ -284,12 +287,15 @@ def evaluate(
 ) -> dict[str, Any]:
     """Every metric of the map against the truth, as a JSON-ready dict.
 
-    `associations`: (truth_id, final object id) of each detection. A later TruthObject with
-    an id seen before replaces it (a later survey day's truth). `radius`: matching radius,
-    default half the minimum plant distance."""
-    latest = {t.id: t for t in truth_objects}
-    truths = list(latest.values())
-    truth_xy = np.array([t.xy for t in truths], float).reshape(-1, 2)
+    The truth: its objects as records or a `TruthObjects` table (a later record of an id
+    replaces it: a later survey day's truth), its poses as records or each robot's true
+    trajectory in time order. `associations`: (truth_id, final object id) of each
+    detection. `radius`: matching radius, default half the minimum plant distance."""
+    truth = (
+        truth_objects if isinstance(truth_objects, TruthObjects) else TruthObjects.of(truth_objects)
+    )
+    truth_rows = truth.placed()
+    truth_xy = truth.xy(truth_rows)
     tracks = _truth_tracks(truth_poses)
     radius = radius if radius is not None else default_radius(truth_xy, min_plant_distance)
     est_xy = np.asarray(snapshot.objects.xy, float).reshape(-1, 2)
@@ -328,7 +334,7 @@ def evaluate(
     if len(unmatched) and len(truth_xy):
         near_truth = cKDTree(truth_xy).query(est_xy[unmatched], distance_upper_bound=radius)[0]
         near_truth = np.isfinite(near_truth)
-    n_truth = len(truths)
+    n_truth = len(truth_rows)
     objects = {
         "n_truth": n_truth,
         "n_estimated": len(est_xy),
@@ -343,7 +349,7 @@ def evaluate(
     }
     metrics: dict[str, Any] = {
         "objects": objects,
-        "attributes": _attribute_scores(snapshot, ei, [truths[j] for j in ti]),
+        "attributes": _attribute_scores(snapshot, ei, truth, truth_rows[ti]),
         "trajectory": {
             "optimised": trajectory_errors(optimised, tracks),
             "dead_reckoning": trajectory_errors(dead, tracks),

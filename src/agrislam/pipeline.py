@@ -19,6 +19,7 @@ from agrislam.checkpoint import FORMAT, Checkpoints, RunState, adopt
 from agrislam.collector import PacedCollector
 from agrislam.config import OutputsConfig
 from agrislam.evaluation import association_counts, evaluate, write_metrics
+from agrislam.ground_truth import TruthObjects
 from agrislam.growing import GrowingRows
 from agrislam.perception.label_map import LabelMap
 from agrislam.records import Detections, Meta, Record, TruthObject, TruthPose
@@ -45,16 +46,15 @@ from agrislam.world import WorldModel
 class Truth:
     """What the source knows of the real field; the world model never sees it."""
 
-    objects: list[TruthObject] = field(default_factory=list)
+    objects: TruthObjects = field(default_factory=TruthObjects)  # numbers the truth ids
     tracks: dict[str, tuple[GrowingRows, GrowingRows]] = field(default_factory=dict)
     min_plant_distance: float | None = None
-    truth_ids: dict[str, int] = field(default_factory=dict)  # truth_id -> its number
     detection_truths: GrowingRows = field(default_factory=lambda: GrowingRows(dtype=np.int32))
     detection_objects: GrowingRows = field(default_factory=lambda: GrowingRows(dtype=np.int32))
 
     @property
     def present(self) -> bool:
-        return bool(self.objects or self.tracks or self.truth_ids)
+        return bool(len(self.objects) or self.tracks)
 
     def add_pose(self, record: TruthPose) -> None:
         """A true pose, kept in its robot's arrays (times, poses) in the order it came."""
@@ -62,16 +62,9 @@ class Truth:
         times.append(record.t)
         poses.append(record.pose)
 
-    @property
-    def poses(self) -> Iterator[TruthPose]:
-        """The true poses, robot by robot, each robot's in the order they came."""
-        for robot, (times, poses) in self.tracks.items():
-            for t, pose in zip(times.array.tolist(), poses.array, strict=True):
-                yield TruthPose(t=t, robot=robot, pose=pose.copy())
-
     def trajectories(self) -> dict[str, Trajectory]:
-        """Each robot's true poses in time order (`evaluation.truth_trajectories` of
-        `poses`), straight from the arrays: no TruthPose object per pose."""
+        """Each robot's true poses in time order (`evaluation.truth_trajectories` of the
+        records), straight from the arrays: no TruthPose object per pose."""
         out = {}
         for robot, (times, poses) in self.tracks.items():
             order = np.argsort(times.array, kind="stable")
@@ -81,8 +74,8 @@ class Truth:
     def saw(self, truth_ids: Iterable[str | None], object_ids: np.ndarray) -> None:
         """A frame's detections: the truth id of each (None: clutter) and its object; kept
         in two int arrays, the ids numbered once each."""
-        numbers = self.truth_ids
-        truths = [-1 if t is None else numbers.setdefault(t, len(numbers)) for t in truth_ids]
+        number = self.objects.number
+        truths = [-1 if t is None else number(t) for t in truth_ids]
         self.detection_truths.extend(truths)
         self.detection_objects.extend(object_ids)
 
@@ -93,7 +86,7 @@ class Truth:
 
     def associations(self, world: WorldModel) -> list[tuple[str | None, int]]:
         """(truth_id, final object id) of every detection (truth_id None for clutter)."""
-        names = list(self.truth_ids)
+        names = list(self.objects.numbers)
         truths, objects = self.association_arrays(world)
         ids = [names[t] if t >= 0 else None for t in truths.tolist()]
         return list(zip(ids, objects.tolist(), strict=True))
@@ -276,7 +269,7 @@ def _carry_on(world: WorldModel, state: RunState) -> RunState:
 def _feed(record: Record, world: WorldModel, truth: Truth) -> int:
     """One record to the world model (truth aside); 1 if it was a frame it mapped."""
     if isinstance(record, TruthObject):
-        truth.objects.append(record)
+        truth.objects.add(record)
     elif isinstance(record, TruthPose):
         truth.add_pose(record)
     else:
@@ -309,7 +302,7 @@ def _score(result: RunResult, world: WorldModel, truth: Truth) -> dict[str, Any]
         metrics = evaluate(
             result.snapshot,
             truth.objects,
-            truth.poses,
+            truth.trajectories(),
             min_plant_distance=truth.min_plant_distance,
         )
         if len(truth.detection_objects):
