@@ -9,6 +9,7 @@ from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
 from agrislam.config import SemanticsConfig
+from agrislam.semantics import heuristic
 from agrislam.semantics.heuristic import interest, interest_surface, sigmoid
 
 CONFIG = SemanticsConfig()
@@ -140,6 +141,18 @@ def test_surface_coarsens_instead_of_exceeding_max_cells():
     xy = np.array([[0.0, 0.0], [100.0, 100.0]])
     s = interest_surface(xy, np.array([0.5, 0.5]), CONFIG, max_cells=10_000)
     assert s.values.size <= 10_201 and s.resolution > CONFIG.surface_resolution
+
+
+def test_surface_in_blocks_equals_the_surface_at_once(monkeypatch):
+    """A whole field's surface is blurred a block of lines at a time: cut into blocks of
+    a few lines, the same values as one block."""
+    rng = np.random.default_rng(4)
+    xy = rng.uniform(0.0, [30.0, 4.0], size=(300, 2))
+    h = rng.uniform(size=300)
+    whole = interest_surface(xy, h, CONFIG)
+    monkeypatch.setattr(heuristic, "BLOCK_CELLS", 7 * whole.values.shape[1] // 2)
+    blocks = interest_surface(xy, h, CONFIG)
+    np.testing.assert_array_equal(blocks.values, whole.values)
 
 
 def test_surface_bad_requests_name_the_problem():

@@ -12,6 +12,8 @@ from scipy.special import expit
 from agrislam.config import SemanticsConfig
 from agrislam.semantics.discrete import kl_normalised
 
+BLOCK_CELLS = 1 << 20  # cells the surface's blur convolves at a time
+
 
 @dataclass(frozen=True, slots=True)
 class InterestSurface:
@@ -86,22 +88,33 @@ def _grid(
 def _splat(
     col: np.ndarray, row: np.ndarray, weights: tuple[np.ndarray, ...], nx: int, ny: int
 ) -> list[np.ndarray]:
-    """Point weights summed into their nearest cells of (ny, nx) grids, one grid per weight
-    array (a point moves at most half a cell, small against sigma); off-grid points drop."""
+    """Point weights summed into their nearest cells of (ny, nx) float32 grids, one grid per
+    weight array (a point moves at most half a cell, small against sigma); off-grid points
+    drop. Summed over the occupied cells only: no float64 grid of the whole field."""
     c, r = np.rint(col).astype(np.int64), np.rint(row).astype(np.int64)
     on = (c >= 0) & (c < nx) & (r >= 0) & (r < ny)
-    flat = (r * nx + c)[on]
-    return [
-        np.bincount(flat, w[on], minlength=nx * ny).reshape(ny, nx).astype(np.float32)
-        for w in weights
-    ]
+    cells, point_cell = np.unique((r * nx + c)[on], return_inverse=True)
+    grids = []
+    for w in weights:
+        grid = np.zeros((ny, nx), dtype=np.float32)
+        grid.flat[cells] = np.bincount(point_cell, w[on], minlength=len(cells))
+        grids.append(grid)
+    return grids
 
 
 def _gaussian_blur(grid: np.ndarray, kernel: np.ndarray) -> np.ndarray:
-    """Separable convolution of a sparse splat: along x only the rows holding a point."""
+    """Separable convolution of a sparse splat, in place and a block of lines at a time (a
+    whole field's grid is never copied): along x only the rows holding a point, then y."""
     rows = np.flatnonzero(grid.any(axis=1))
-    grid[rows] = convolve1d(grid[rows], kernel, axis=1, mode="constant")
-    return convolve1d(grid, kernel, axis=0, output=grid, mode="constant")
+    per = max(1, BLOCK_CELLS // grid.shape[1])
+    for start in range(0, len(rows), per):
+        block = rows[start : start + per]
+        grid[block] = convolve1d(grid[block], kernel, axis=1, mode="constant")
+    per = max(1, BLOCK_CELLS // grid.shape[0])
+    for start in range(0, grid.shape[1], per):
+        block = grid[:, start : start + per]
+        block[...] = convolve1d(block, kernel, axis=0, mode="constant")
+    return grid
 
 
 def interest_surface(
@@ -139,5 +152,7 @@ def interest_surface(
     kernel = np.exp(-0.5 * (np.arange(-radius, radius + 1) / s) ** 2).astype(np.float32)
     # the kernel's peak is 1 (not unit sum): a lone object on a cell centre has w = 1 there
     weight, knowledge = _gaussian_blur(weight, kernel), _gaussian_blur(knowledge, kernel)
-    values = 1.0 - knowledge / np.maximum(weight, 1.0)
+    # v = 1 - knowledge / max(1, weight), in place: a whole field's grid is held twice, not 5x
+    values = np.divide(knowledge, np.maximum(weight, 1.0, out=weight), out=knowledge)
+    np.subtract(1.0, values, out=values)
     return InterestSurface(x0, y0, res, np.clip(values, 0.0, 1.0, out=values))
