@@ -272,17 +272,17 @@ def test_foxglove_plants_of_a_large_map_go_out_in_several_scene_updates(
     assert [e.id for _, entities in parts for e in entities] == ids
 
 
-def test_foxglove_plants_encoded_entity_by_entity(
+def test_foxglove_plants_and_trajectories_encoded_item_by_item(
     tmp_path: Path, sample_snapshot: MapSnapshot
 ) -> None:
-    """The plants' SceneUpdate is encoded entity by entity (no 100,000 entities held at
-    once): byte for byte the SDK's encoding of the whole message, on a channel with the
-    schema the SDK's SceneUpdateChannel gives it."""
+    """The plants' SceneUpdate is encoded entity by entity and a trajectory pose by pose
+    (no 100,000 of them held at once): byte for byte the SDK's encoding of the whole
+    message, on a channel with the schema the SDK's own channel gives it."""
     pytest.importorskip("foxglove")
     from foxglove import messages as m
     from mcap.reader import make_reader
 
-    from agrislam.sinks.foxglove import plant_entities, write_foxglove_mcap
+    from agrislam.sinks.foxglove import _pose, _timestamp, plant_entities, write_foxglove_mcap
 
     snap = sample_snapshot
     path = write_foxglove_mcap(snap, tmp_path / "scene.mcap", "size", stamp=12.5)
@@ -302,3 +302,26 @@ def test_foxglove_plants_encoded_entity_by_entity(
     )
     assert schema.data == m.SceneUpdate.get_schema().data
     assert channel.schema_id == rows_channel.schema_id and channel.metadata == rows_channel.metadata
+    schema, _, message = found["/agrislam/dead_reckoning/husky"]
+    poses = [_pose(m, p[0], p[1], 0.0, p[2]) for p in snap.dead_reckoning["husky"].poses]
+    whole = m.PosesInFrame(timestamp=_timestamp(m, 12.5), frame_id="map", poses=poses)
+    assert message.data == whole.encode() and len(poses) > 1
+    assert schema.data == m.PosesInFrame.get_schema().data
+    schema, _, message = found["/agrislam/interest"]
+    grid = read_foxglove(path)["/agrislam/interest"][1]  # decoded by protobuf, encoded again
+    assert message.data == grid.SerializeToString() and len(grid.data) > 2**7  # a 2-byte length
+    assert schema.data == m.Grid.get_schema().data
+
+
+def test_protobuf_varint() -> None:
+    pytest.importorskip("foxglove")
+    from agrislam.sinks.foxglove import _varint
+
+    assert [_varint(n) for n in (0, 1, 127, 128, 300, 2**14)] == [
+        b"\x00",
+        b"\x01",
+        b"\x7f",
+        b"\x80\x01",
+        b"\xac\x02",
+        b"\x80\x80\x01",
+    ]

@@ -12,7 +12,7 @@ Foxglove lists when a plant is clicked), ``/agrislam/rows`` (SceneUpdate, the ro
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from itertools import islice
 from pathlib import Path
 from typing import Any
@@ -22,10 +22,11 @@ import numpy as np
 from agrislam.geometry.se2 import quaternion_from_yaw
 from agrislam.sinks.readouts import discrete_columns
 from agrislam.sinks.scene import covariance_ellipses, plant_style, row_segments, snapshot_time
-from agrislam.snapshot import MapSnapshot
+from agrislam.snapshot import MapSnapshot, Trajectory
 
 FRAME = "map"
 ENTITIES_PER_MESSAGE = 10_000  # plants a SceneUpdate holds
+GRID_DATA_FIELD = 9  # foxglove.Grid's `data`, its last field (foxglove/Grid.proto)
 
 
 def _sdk() -> tuple[Any, Any, Any]:
@@ -124,15 +125,38 @@ def plant_entities(
         )
 
 
-def scene_update_bytes(entities: Iterable[Any]) -> bytearray:
-    """The protobuf of a SceneUpdate of `entities`, encoded entity by entity: a repeated
-    field's encoding is its items' encodings one after the other, so this is byte for
-    byte `SceneUpdate(entities=[...]).encode()` without every entity held at once."""
-    m = _sdk()[2]
-    out = bytearray()
-    for entity in entities:
-        out += m.SceneUpdate(entities=[entity]).encode()
+def streamed_bytes(head: Any, alone: Callable[[Any], Any], items: Iterable[Any]) -> bytearray:
+    """The protobuf of message `head` with `items` in its (last) repeated field, encoded
+    item by item (`alone(item)`: a message holding only that item): a repeated field's
+    encoding is its items' encodings one after the other, so this is byte for byte the
+    whole message's `encode()` without every item held at once."""
+    out = bytearray(head.encode())
+    for item in items:
+        out += alone(item).encode()
     return out
+
+
+def scene_update_bytes(entities: Iterable[Any]) -> bytearray:
+    """The protobuf of a SceneUpdate of `entities`, encoded entity by entity."""
+    m = _sdk()[2]
+    return streamed_bytes(m.SceneUpdate(), lambda e: m.SceneUpdate(entities=[e]), entities)
+
+
+def poses_in_frame_bytes(trajectory: Trajectory, ts: Any) -> bytearray:
+    """The protobuf of a trajectory's PosesInFrame, encoded pose by pose: a whole field's
+    drive is hundreds of thousands of poses (issue 14)."""
+    m = _sdk()[2]
+    poses = (
+        _pose(m, p[0], p[1], 0.0, float(p[2])) for p in np.asarray(trajectory.poses, dtype=float)
+    )
+    head = m.PosesInFrame(timestamp=ts, frame_id=FRAME, poses=[])
+    return streamed_bytes(head, lambda p: m.PosesInFrame(poses=[p]), poses)
+
+
+def _channel(foxglove: Any, topic: str, message: Any, context: Any) -> Any:
+    """A channel of `message`'s schema that takes the encoded bytes."""
+    schema = message.get_schema()
+    return foxglove.Channel(topic, message_encoding=schema.encoding, schema=schema, context=context)
 
 
 def write_foxglove_mcap(
@@ -172,10 +196,7 @@ def write_foxglove_mcap(
     ]
     context = foxglove.Context()
     with foxglove.open_mcap(path, allow_overwrite=overwrite, context=context):
-        schema = m.SceneUpdate.get_schema()  # the channel SceneUpdateChannel makes
-        channel = foxglove.Channel(
-            "/agrislam/plants", message_encoding=schema.encoding, schema=schema, context=context
-        )
+        channel = _channel(foxglove, "/agrislam/plants", m.SceneUpdate, context)
         for _ in range(0, max(len(snapshot.objects), 1), entities_per_message):  # empty: one
             part = scene_update_bytes(islice(plants, entities_per_message))
             channel.log(bytes(part), log_time=log_time)
@@ -183,31 +204,28 @@ def write_foxglove_mcap(
             rows_channel = channels.SceneUpdateChannel("/agrislam/rows", context=context)
             rows_channel.log(m.SceneUpdate(entities=rows), log_time=log_time)
         if snapshot.interest_surface is not None:
-            grid = channels.GridChannel("/agrislam/interest", context=context)
-            grid.log(_interest_grid(m, snapshot, ts), log_time=log_time)
+            grid = _channel(foxglove, "/agrislam/interest", m.Grid, context)
+            grid.log(interest_grid_bytes(snapshot, ts), log_time=log_time)
         for kind, trajectories in (
             ("trajectory", snapshot.trajectories),
             ("dead_reckoning", snapshot.dead_reckoning),
         ):
             for robot, tr in trajectories.items():
-                poses = [
-                    _pose(m, p[0], p[1], 0.0, float(p[2]))
-                    for p in np.asarray(tr.poses, dtype=float)
-                ]
-                channel = channels.PosesInFrameChannel(f"/agrislam/{kind}/{robot}", context=context)
-                channel.log(
-                    m.PosesInFrame(timestamp=ts, frame_id=FRAME, poses=poses), log_time=log_time
-                )
+                channel = _channel(foxglove, f"/agrislam/{kind}/{robot}", m.PosesInFrame, context)
+                channel.log(bytes(poses_in_frame_bytes(tr, ts)), log_time=log_time)
     return path
 
 
-def _interest_grid(m: Any, snapshot: MapSnapshot, ts: Any) -> Any:
-    """The interest surface as a float32 Grid, row-major from the (x0, y0) corner."""
+def interest_grid_bytes(snapshot: MapSnapshot, ts: Any) -> bytes:
+    """The protobuf of the interest surface as a float32 Grid, row-major from the (x0, y0)
+    corner. The cells (millions on a whole field) are copied once, into the message: they
+    are `data`, the Grid's last field, appended to the encoding of the rest."""
+    m = _sdk()[2]
     surface = snapshot.interest_surface
     assert surface is not None
     values = np.ascontiguousarray(surface.values, dtype="<f4")
     nx = values.shape[1]
-    return m.Grid(
+    head = m.Grid(
         timestamp=ts,
         frame_id=FRAME,
         pose=_pose(m, surface.x0, surface.y0),
@@ -220,5 +238,17 @@ def _interest_grid(m: Any, snapshot: MapSnapshot, ts: Any) -> Any:
                 name="interest", offset=0, type=m.PackedElementFieldNumericType.Float32
             )
         ],
-        data=values.tobytes(),
     )
+    data = memoryview(values).cast("B")
+    key = _varint(GRID_DATA_FIELD << 3 | 2)  # a length-delimited field
+    return b"".join((head.encode(), key, _varint(len(data)), data))
+
+
+def _varint(n: int) -> bytes:
+    """Protobuf's base-128 varint of a non-negative int."""
+    out = bytearray()
+    while True:
+        low, n = n & 0x7F, n >> 7
+        out.append(low | (0x80 if n else 0))
+        if not n:
+            return bytes(out)
