@@ -162,14 +162,16 @@ def association_counts(truths: np.ndarray, objects: np.ndarray) -> dict[str, Any
     arrays: a whole field's detections without a Python object each."""
     n_detections = len(truths)
     keep = truths >= 0
-    pairs, counts = np.unique(
-        np.column_stack([truths[keep], objects[keep]]), axis=0, return_counts=True
-    )
-    total = int(counts.sum())
-    if total == 0:
+    if not keep.any():
         return {"n_detections": n_detections, "n_clutter": n_detections}
-    per_truth = _group_max_and_size(pairs[:, 0], counts)
-    per_object = _group_max_and_size(pairs[:, 1], counts)
+    # a (truth, object) pair as one int64: a 1-D unique, not a row-wise one of a copy
+    objects = np.asarray(objects)[keep].astype(np.int64)
+    span = int(objects.max()) + 1
+    pairs = np.asarray(truths)[keep].astype(np.int64) * span + objects
+    pairs, counts = np.unique(pairs, return_counts=True)
+    total = int(counts.sum())
+    per_truth = _group_max_and_size(pairs // span, counts)
+    per_object = _group_max_and_size(pairs % span, counts)
     return {
         "n_detections": n_detections,
         "n_clutter": n_detections - total,
