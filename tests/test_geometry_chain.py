@@ -20,3 +20,18 @@ def test_a_chain_numbers_its_pose_keys_in_the_order_driven():
         chain.keys[3]
     chain.clear()
     assert len(chain.keys) == 0 and chain.add(7.0) == pose_key(2, 0)
+
+
+def test_key_kind_and_index_read_gtsam_symbols() -> None:
+    """key_kind / key_index read a key's bits as gtsam.Symbol does, for plain and numpy ints."""
+    import gtsam
+
+    from agrislam.geometry.graph import key_index, key_indices, key_kind
+
+    for letter, index in [("x", 0), ("l", 123_456_789), ("r", 5), ("x", 3 * (1 << 40) + 7)]:
+        key = gtsam.symbol(letter, index)
+        symbol = gtsam.Symbol(key)
+        for k in (key, np.uint64(key), int(key)):
+            assert key_kind(k) == chr(symbol.chr()) == letter
+            assert key_index(k) == symbol.index() == index
+        assert key_indices(np.array([key], dtype=np.uint64)).tolist() == [index]

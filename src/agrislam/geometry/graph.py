@@ -22,6 +22,8 @@ from agrislam.growing import GrowingRows
 
 # key layout: one symbol letter per node kind; robot r's pose i is x(r * POSES_PER_ROBOT + i)
 POSES_PER_ROBOT = 1 << NODE_BITS
+INDEX_BITS = 56  # GTSAM's Symbol: the letter in the top byte, the index below it
+INDEX_MASK = (1 << INDEX_BITS) - 1
 POSE, OBJECT, ROW = "x", "l", "r"
 
 # factor kinds
@@ -45,14 +47,14 @@ def object_key(object_id: int) -> int:
 
 
 def object_keys(object_ids: np.ndarray) -> list[int]:
-    """`object_key` of many ids at once (GTSAM's symbol: the letter in the top byte)."""
+    """`object_key` of many ids at once."""
     ids = np.asarray(object_ids, dtype=np.uint64)
-    return ((np.uint64(ord(OBJECT)) << np.uint64(56)) | ids).tolist()
+    return ((np.uint64(ord(OBJECT)) << np.uint64(INDEX_BITS)) | ids).tolist()
 
 
 def key_indices(keys: np.ndarray) -> np.ndarray:
-    """`key_index` of many keys at once (GTSAM's symbol: the index below the top byte)."""
-    return (np.asarray(keys, dtype=np.uint64) & np.uint64((1 << 56) - 1)).astype(np.int64)
+    """`key_index` of many keys at once."""
+    return (np.asarray(keys, dtype=np.uint64) & np.uint64(INDEX_MASK)).astype(np.int64)
 
 
 def row_key(row: int) -> int:
@@ -60,11 +62,13 @@ def row_key(row: int) -> int:
 
 
 def key_kind(key: int) -> str:
-    return chr(gtsam.Symbol(key).chr())
+    """The node kind's letter (in plain ints: a gtsam.Symbol costs ~1 us, and a fold asks
+    this of every node it touches)."""
+    return chr(int(key) >> INDEX_BITS)
 
 
 def key_index(key: int) -> int:
-    return int(gtsam.Symbol(key).index())
+    return int(key) & INDEX_MASK
 
 
 def robot_index_of(pose: int) -> int:
