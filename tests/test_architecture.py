@@ -20,6 +20,7 @@ CORE = [
     "config",
     "growing",
     "stage_timer",
+    "released",
     "records",
     "semantics",
     "snapshot",

@@ -209,3 +209,33 @@ def test_truth_trajectories_straight_from_the_arrays():
     for robot, trajectory in expected.items():
         np.testing.assert_array_equal(got[robot].t, trajectory.t, strict=True)
         np.testing.assert_array_equal(got[robot].poses, trajectory.poses, strict=True)
+
+
+def test_a_released_world_lets_its_state_go_before_the_outputs(tmp_path, monkeypatch):
+    """release_world (the CLI's run): the outputs are the same, the back end and the
+    object table are freed before they are written (their memory is the outputs' to
+    reuse), and a later use of the world says that it was released."""
+    import weakref
+
+    from agrislam import pipeline
+
+    kept = run_survey(open_source(SMALL), WorldModel(), tmp_path / "kept")
+    world = WorldModel()
+    parts = [weakref.ref(world.backend), weakref.ref(world.objects), weakref.ref(world.index)]
+    alive_at_outputs = []
+
+    def write_outputs(*args, **kwargs):
+        alive_at_outputs.extend(part() is not None for part in parts)
+        return write(*args, **kwargs)
+
+    write = pipeline.write_outputs
+    monkeypatch.setattr(pipeline, "write_outputs", write_outputs)
+    released = run_survey(open_source(SMALL), world, tmp_path / "released", release_world=True)
+    assert alive_at_outputs == [False, False, False]
+    assert [p.name for p in released.outputs] == [p.name for p in kept.outputs]
+    for name in ("objects.csv", "trajectory.csv"):
+        assert (tmp_path / "released" / name).read_text() == (tmp_path / "kept" / name).read_text()
+    with pytest.raises(RuntimeError, match="was released once the run"):
+        world.snapshot()
+    with pytest.raises(RuntimeError, match="'objects' was released"):
+        len(world.objects)

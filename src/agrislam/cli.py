@@ -494,6 +494,7 @@ def _run(
             checkpoints=checkpoints,
             resume=resume,
             season=season,
+            release_world=True,  # nothing here reads the world after the run
         )
     if resume:
         at = (result.checkpoints or {}).get("resumed_at_record")

@@ -5,6 +5,7 @@ kept aside for scoring. What the CLI runs, for any source."""
 from __future__ import annotations
 
 import dataclasses
+import gc
 import importlib.util
 import time
 from collections import Counter
@@ -16,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from agrislam.checkpoint import FORMAT, Checkpoints, RunState, adopt
-from agrislam.collector import PacedCollector
+from agrislam.collector import PacedCollector, release_free_heap
 from agrislam.config import OutputsConfig
 from agrislam.evaluation import association_counts, evaluate, write_metrics
 from agrislam.ground_truth import TruthObjects
@@ -157,6 +158,7 @@ def run_survey(
     checkpoints: Checkpoints | None = None,
     resume: bool = False,
     season: SeasonRun | None = None,
+    release_world: bool = False,
 ) -> RunResult:
     """Feed every record to the world model, then score the map and write the outputs.
 
@@ -169,12 +171,19 @@ def run_survey(
 
     `checkpoints`: save the run's state every so many frames (`agrislam.checkpoint`);
     `resume`: first carry on from the checkpoint there (`ResumeError` if it is of another
-    input or config), skipping the records it had mapped."""
+    input or config), skipping the records it had mapped. `release_world`: once the map is
+    taken and scored, the world model lets its solver and per-object state go
+    (`WorldModel.release`), so the outputs of a whole field reuse that memory; for a
+    caller that does not use the world after the run (the CLI)."""
+
+    def run(folder: RunFolder | None) -> RunResult:
+        return _run(records, world, folder, progress, checkpoints, resume, season, release_world)
+
     if isinstance(out_dir, (str, Path)):
         with RunFolder(out_dir, force=force, resume=resume) as folder:
-            result = _run(records, world, folder, progress, checkpoints, resume, season)
+            result = run(folder)
     else:
-        result = _run(records, world, out_dir, progress, checkpoints, resume, season)
+        result = run(out_dir)
     if result.error is not None:
         raise RunError(result) from result.error
     return result
@@ -188,6 +197,7 @@ def _run(
     checkpoints: Checkpoints | None = None,
     resume: bool = False,
     season: SeasonRun | None = None,
+    release_world: bool = False,
 ) -> RunResult:
     source = records if isinstance(records, Source) else None
     stream = source.records() if source is not None else records
@@ -243,6 +253,8 @@ def _run(
         result.season = summary["season"]
     if folder is not None and (counts or error is None):
         extra = season_outputs(season, world, result.snapshot)
+        if release_world:
+            _let_go(world)
         kept = None  # a stopped run keeps its last checkpoint in map.sqlite, to resume
         if checkpoints is not None and error is not None:
             kept = checkpoints.last or {"format": FORMAT}
@@ -257,6 +269,13 @@ def _run(
             extra,
         )
     return result
+
+
+def _let_go(world: WorldModel) -> None:
+    """The world's state goes before the outputs are written: they reuse its memory."""
+    world.release()
+    gc.collect()  # a deferred covariance job holds the back end that holds it
+    release_free_heap()
 
 
 def _carry_on(world: WorldModel, state: RunState) -> RunState:

@@ -38,6 +38,7 @@ from agrislam.objects import ObjectTable
 from agrislam.prior.backend import PriorBackend
 from agrislam.prior.map import PriorMap
 from agrislam.records import Detection, Detections, FieldPrior, GnssFix, Meta, Odometry, Record
+from agrislam.released import Released
 from agrislam.semantics.beliefs import BeliefTable
 from agrislam.semantics.heuristic import interest_surface
 from agrislam.snapshot import STATUS_MERGED, STATUS_PRUNED, MapSnapshot, ObjectMap, Trajectory
@@ -135,9 +136,8 @@ class WorldModel:
 
     def configure(self, meta: Meta) -> None:
         """Take the schema, start poses, anchor and field knowledge of a survey."""
-        self.survey_start = (
-            meta.survey_start if meta.survey_start is not None else self.survey_start
-        )
+        if meta.survey_start is not None:
+            self.survey_start = meta.survey_start
         if self.prior is not None and not isinstance(self.backend, PriorBackend):
             self._enter_prior(self.prior, meta)
         if self.schema is None and meta.schema is not None and len(self.objects) == 0:
@@ -511,8 +511,8 @@ class WorldModel:
             n_meas=self.objects.n_meas[ids].copy(),
             interest=h,
             row=self.rows.row_of(ids) if self.rows is not None else np.full(len(ids), -1),
-            discrete={n: self.beliefs.probabilities(n, ids, t) for n in self._names("discrete")},
-            continuous={n: self.beliefs.gaussian(n, ids, t) for n in self._names("continuous")},
+            discrete=self.beliefs.discrete_beliefs(ids, t),
+            continuous=self.beliefs.continuous_beliefs(ids, t),
         )
         trajectories, dead_reckoning = {}, {}
         for name, chain in self.robots.items():
@@ -534,6 +534,12 @@ class WorldModel:
             interest_surface=surface,
             step_times={k: np.asarray(v) for k, v in self._timer.history.items()},
         )
+
+    def release(self) -> None:
+        """The run's map is taken (`snapshot`): the solver, the index and the per-object
+        state go, so that writing a whole field's outputs reuses their memory (issue 14)."""
+        for part in ("backend", "objects", "index", "rows", "robots", "existence"):
+            setattr(self, part, Released(part))
 
     # ----------------------------------------------------------------- helpers
 
@@ -585,16 +591,8 @@ class WorldModel:
     ) -> None:
         """Along-ray residuals of detections of well-triangulated objects refine the
         depth bias (geometry/depth_bias.py)."""
-        if not self.config.sensor.estimate_depth_bias or len(object_ids) == 0:
-            return
         known = self.objects.n_meas[object_ids] > self.config.sensor.depth_bias_min_views
-        if not known.any():
-            return
-        pose = self.backend.current_pose(robot)
-        predicted = se2.to_robot_frame(pose, self.backend.object_positions(object_ids[known]))
-        self.depth_bias.observe(placed.robot_xy[known], predicted)
-
-    def _names(self, kind: str) -> list[str]:
-        if self.schema is None:
-            return []
-        return list(self.schema.discrete if kind == "discrete" else self.schema.continuous)
+        if self.config.sensor.estimate_depth_bias and known.any():
+            pose = self.backend.current_pose(robot)
+            predicted = se2.to_robot_frame(pose, self.backend.object_positions(object_ids[known]))
+            self.depth_bias.observe(placed.robot_xy[known], predicted)
