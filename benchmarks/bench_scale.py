@@ -30,6 +30,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from inspect import signature
 from pathlib import Path
 from typing import Any
 
@@ -53,8 +54,11 @@ def child(plants: int, seed: int, changes: dict[str, Any]) -> dict[str, Any]:
 
     config = AgrislamConfig.model_validate(changes)
     source = open_source(simulation_uri(plants=plants, seed=seed), config)
+    # as the CLI runs it: the world lets its state go before the outputs (a checkout from
+    # before release_world has no such choice)
+    cli = {"release_world": True} if "release_world" in signature(run_survey).parameters else {}
     with tempfile.TemporaryDirectory() as out:
-        result = run_survey(source, WorldModel(config), out)
+        result = run_survey(source, WorldModel(config), out, **cli)
     steps = result.snapshot.step_seconds() if result.snapshot is not None else np.zeros(0)
     times = [t.t for t in result.snapshot.trajectories.values()]
     survey = max((float(t[-1] - t[0]) for t in times if len(t)), default=0.0)
