@@ -11,7 +11,10 @@ from numpy.typing import ArrayLike, DTypeLike
 def grown(old: np.ndarray, size: int, fill: float) -> np.ndarray:
     """`old` with room for `size` rows, the new ones `fill`ed (a table's columns, grown by
     doubling where they are kept)."""
-    new = np.full((size, *old.shape[1:]), fill, dtype=old.dtype)
+    shape = (size, *old.shape[1:])
+    # zeros come from calloc, whose pages are touched only when written: doubling a whole
+    # field's table (tens of MB) then costs the copy of the old rows alone, not a fill too
+    new = np.zeros(shape, dtype=old.dtype) if fill == 0 else np.full(shape, fill, old.dtype)
     new[: len(old)] = old
     return new
 
@@ -40,10 +43,7 @@ class GrowingRows:
 
     def _reserve(self, n: int) -> None:
         if n > len(self._data):
-            size = max(n, 2 * len(self._data))
-            grown = np.zeros((size, *self._data.shape[1:]), dtype=self._data.dtype)
-            grown[: self._n] = self._data[: self._n]
-            self._data = grown
+            self._data = grown(self._data, max(n, 2 * len(self._data)), 0)
 
     @property
     def array(self) -> np.ndarray:

@@ -28,6 +28,7 @@ from typing import Any
 import numpy as np
 
 from agrislam.geometry.key_table import KeyTable
+from agrislam.growing import grown
 
 NONE = -1
 DEAD = -1
@@ -283,7 +284,4 @@ class FactorStore(MutableMapping[int, Factor]):
             ("_cov_dim", 0),
             ("_next", NONE),
         ):
-            old = getattr(self, name)
-            new = np.full((size, *old.shape[1:]), fill, dtype=old.dtype)
-            new[:capacity] = old
-            setattr(self, name, new)
+            setattr(self, name, grown(getattr(self, name), size, fill))

@@ -13,7 +13,7 @@ from collections.abc import Iterator, KeysView
 import numpy as np
 from numpy.typing import ArrayLike
 
-from agrislam.growing import GrowingRows
+from agrislam.growing import GrowingRows, grown
 
 REMOVED = -1
 
@@ -66,9 +66,7 @@ class ObjectNodes:
             self._xy.array[self._slot[object_id]] = np.asarray(xy, dtype=float).reshape(2)
             return
         if object_id >= len(self._slot):
-            grown = np.full(max(object_id + 1, 2 * len(self._slot)), REMOVED, dtype=np.int64)
-            grown[: len(self._slot)] = self._slot
-            self._slot = grown
+            self._slot = grown(self._slot, max(object_id + 1, 2 * len(self._slot)), REMOVED)
         self._slot[object_id] = len(self._ids)
         self._ids.append(object_id)
         self._xy.append(np.asarray(xy, dtype=float).reshape(2))

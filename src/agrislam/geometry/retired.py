@@ -27,6 +27,7 @@ from agrislam.geometry.se2 import (
     to_map_frame,
     wrap_angle,
 )
+from agrislam.growing import grown
 
 PoseLookup = Callable[[np.ndarray], np.ndarray]  # keyframe keys (k,) -> their poses (k, 3)
 
@@ -146,9 +147,7 @@ class Retired:
             row = self._n
             if row == len(self._columns["keys"]):
                 for name, column in self._columns.items():
-                    grown = np.zeros((max(16, 2 * row), *column.shape[1:]), column.dtype)
-                    grown[:row] = column
-                    self._columns[name] = grown
+                    self._columns[name] = grown(column, max(16, 2 * row), 0)
             self._row[key] = row
             self._n += 1
         for name, value in {"keys": key, "keyframes": keyframe, "local": local, **more}.items():

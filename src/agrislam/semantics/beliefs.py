@@ -20,6 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from agrislam.config import ContinuousAttribute, DiscreteAttribute, FieldSchema, SemanticsConfig
+from agrislam.growing import grown
 from agrislam.records import ContinuousMeasurement, DiscreteMeasurement, Measurement
 from agrislam.semantics import continuous, discrete, growth, heuristic
 
@@ -151,16 +152,11 @@ class BeliefTable:
         capacity = max(2 * self._capacity, n_rows)
         for store in (self._p, self._mean, self._var):
             for name, old in store.items():
-                store[name] = self._grown(old, capacity)
-        self._n_meas = self._grown(self._n_meas, capacity)
-        self._last_update = self._grown(self._last_update, capacity)
-        self._belief_time = self._grown(self._belief_time, capacity)
+                store[name] = grown(old, capacity, 0)
+        self._n_meas = grown(self._n_meas, capacity, 0)
+        self._last_update = grown(self._last_update, capacity, 0)
+        self._belief_time = grown(self._belief_time, capacity, 0)
         self._capacity = capacity
-
-    def _grown(self, old: np.ndarray, capacity: int) -> np.ndarray:
-        new = np.zeros((capacity, *old.shape[1:]), dtype=old.dtype)
-        new[: self._n] = old[: self._n]
-        return new
 
     def add(self, count: int, t: float) -> np.ndarray:
         """`count` new objects at time t with the initial beliefs; returns their row ids."""
