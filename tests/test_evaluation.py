@@ -202,6 +202,8 @@ def test_purity_and_completeness_by_hand():
     assert merged["purity"] == 0.5 and merged["completeness"] == 1.0
     split = association_scores([("a", 1), ("a", 2)])  # one plant as two objects
     assert split["purity"] == 1.0 and split["completeness"] == 0.5
+    shifted = association_scores([(t, 4 * o - 7) for t, o in assoc])  # any ids, negative too
+    assert shifted == s
     truth = _truth()
     m = evaluate(_snapshot(truth), truth, associations=assoc)
     assert m["association"]["purity"] == pytest.approx(5 / 6)

@@ -166,6 +166,7 @@ def association_counts(truths: np.ndarray, objects: np.ndarray) -> dict[str, Any
         return {"n_detections": n_detections, "n_clutter": n_detections}
     # a (truth, object) pair as one int64: a 1-D unique, not a row-wise one of a copy
     objects = np.asarray(objects)[keep].astype(np.int64)
+    objects -= objects.min()  # from 0, whatever ids come: only which pairs match counts
     span = int(objects.max()) + 1
     pairs = np.asarray(truths)[keep].astype(np.int64) * span + objects
     pairs, counts = np.unique(pairs, return_counts=True)
