@@ -591,8 +591,10 @@ class WorldModel:
     ) -> None:
         """Along-ray residuals of detections of well-triangulated objects refine the
         depth bias (geometry/depth_bias.py)."""
+        if not self.config.sensor.estimate_depth_bias:
+            return
         known = self.objects.n_meas[object_ids] > self.config.sensor.depth_bias_min_views
-        if self.config.sensor.estimate_depth_bias and known.any():
+        if known.any():
             pose = self.backend.current_pose(robot)
             predicted = se2.to_robot_frame(pose, self.backend.object_positions(object_ids[known]))
             self.depth_bias.observe(placed.robot_xy[known], predicted)
