@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from agrislam.growing import GrowingRows, grown
+from agrislam.growing import AHEAD, Doubling, GrowingRows, grown
 
 
 def test_rows_come_back_in_order_across_growth():
@@ -37,3 +37,54 @@ def test_grown_keeps_the_rows_and_fills_the_new_ones(fill, dtype):
     assert new.shape == (9, 3) and new.dtype == old.dtype
     np.testing.assert_array_equal(new[:4], old)
     np.testing.assert_array_equal(new[4:], np.full((5, 3), fill, dtype=dtype))
+
+
+def _table(capacity: int) -> dict[str, np.ndarray]:
+    return {"ids": np.full((capacity, 2), -1, dtype=np.int64), "xy": np.zeros(capacity)}
+
+
+def test_doubling_keeps_every_row_written_before_it():
+    """A table grown a row at a time (Doubling, every table's growth): the rows as last
+    written, including those rewritten while the doubled columns were being made, and the
+    rows not used yet at their fill."""
+    doubling = Doubling({"ids": -1, "xy": 0})
+    table, capacity = _table(16), 16
+    for row in range(1000):
+        doubled = doubling.reserve(row + 1, capacity, lambda table=table: table)
+        if doubled:
+            table, capacity = doubled, len(doubled["ids"])
+        table["ids"][row] = (row, 2 * row)
+        table["xy"][row] = row / 3
+        table["xy"][row // 2] = -row  # an older row changes as the table grows
+    expected_xy = np.arange(1000) / 3
+    for row in range(1000):
+        expected_xy[row // 2] = -row
+    assert capacity == 1024
+    np.testing.assert_array_equal(table["ids"][:1000], np.c_[np.arange(1000), 2 * np.arange(1000)])
+    np.testing.assert_array_equal(table["xy"][:1000], expected_xy)
+    np.testing.assert_array_equal(table["ids"][1000:], -1)
+    np.testing.assert_array_equal(table["xy"][1000:], 0)
+
+
+def test_doubled_columns_are_made_before_the_row_that_fills_the_table():
+    """The fill and the pages of the doubled columns are written over the last 1/AHEAD of
+    the capacity, a slice a row, so the doubling itself only copies."""
+    doubling, table = Doubling({"ids": -1, "xy": 0}), _table(1024)
+    made = []
+    for n in range(1, 1025):
+        assert doubling.reserve(n, 1024, lambda: table) is None
+        made.append(doubling.made)
+    window = 1024 // AHEAD
+    assert max(made[: 1024 - window]) == 0  # nothing allocated before the window
+    assert np.all(np.diff(made[1024 - window :]) > 0) and made[-1] == 2048
+    doubled = doubling.reserve(1025, 1024, lambda: table)
+    assert doubled is not None and len(doubled["xy"]) == 2048 and doubling.made == 0
+
+
+def test_a_bulk_reserve_grows_at_once():
+    doubling, table = Doubling({"ids": -1, "xy": 0}), _table(8)
+    table["xy"][:] = 5
+    doubled = doubling.reserve(100, 8, lambda: table)
+    assert len(doubled["ids"]) == 100
+    np.testing.assert_array_equal(doubled["xy"], np.r_[np.full(8, 5.0), np.zeros(92)])
+    np.testing.assert_array_equal(doubled["ids"], -1)

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from agrislam.growing import grown
+from agrislam.growing import Doubling
 from agrislam.semantics.beliefs import BeliefTable
 from agrislam.snapshot import STATUS_ACTIVE
 
@@ -36,6 +36,21 @@ class Sightings:
     cov: np.ndarray  # (k, 2, 2) its configured covariance in that frame
 
 
+# each column's row shape, dtype and value in rows not used yet
+_COLUMNS: dict[str, tuple[tuple[int, ...], type, float]] = {
+    "_status": ((), np.int8, STATUS_ACTIVE),
+    "_merged_into": ((), np.int64, -1),
+    "_n_frames": ((), np.int64, 0),
+    "_seen_by": ((), np.int64, NO_ROBOT),
+    "_seen_drift": ((3, 3, 3), np.float64, 0),
+    "_seen_xy": ((2,), np.float64, 0),
+    "_seen_cov": ((2, 2), np.float64, 0),
+    "_young": ((), bool, False),
+    "_tentative": ((), bool, False),
+    "_views": ((), np.int64, 0),
+}
+
+
 class ObjectTable:
     """Rows of objects: lifecycle, sightings and beliefs; ids are row numbers, never reused."""
 
@@ -43,16 +58,9 @@ class ObjectTable:
         self.beliefs = beliefs
         self._n = len(beliefs)
         capacity = max(capacity, self._n, 1)
-        self._status = np.full(capacity, STATUS_ACTIVE, dtype=np.int8)
-        self._merged_into = np.full(capacity, -1, dtype=np.int64)
-        self._n_frames = np.zeros(capacity, dtype=np.int64)
-        self._seen_by = np.full(capacity, NO_ROBOT, dtype=np.int64)
-        self._seen_drift = np.zeros((capacity, 3, 3, 3))
-        self._seen_xy = np.zeros((capacity, 2))
-        self._seen_cov = np.zeros((capacity, 2, 2))
-        self._young = np.zeros(capacity, dtype=bool)
-        self._tentative = np.zeros(capacity, dtype=bool)
-        self._views = np.zeros(capacity, dtype=np.int64)
+        for name, (shape, dtype, fill) in _COLUMNS.items():
+            setattr(self, name, np.full((capacity, *shape), fill, dtype=dtype))
+        self._doubling = Doubling({name: fill for name, (_, _, fill) in _COLUMNS.items()})
         self._on_retire: list[Callable[[np.ndarray], None]] = []
 
     def __len__(self) -> int:
@@ -184,17 +192,4 @@ class ObjectTable:
     # ------------------------------------------------------------------ storage
     def _reserve(self, n: int) -> None:
         """Room for n rows; capacity doubles, so growing is amortised O(1) per object."""
-        capacity = len(self._status)
-        if n <= capacity:
-            return
-        size = max(n, 2 * capacity)
-        self._status = grown(self._status, size, STATUS_ACTIVE)
-        self._merged_into = grown(self._merged_into, size, -1)
-        self._n_frames = grown(self._n_frames, size, 0)
-        self._seen_by = grown(self._seen_by, size, NO_ROBOT)
-        self._seen_drift = grown(self._seen_drift, size, 0.0)
-        self._seen_xy = grown(self._seen_xy, size, 0.0)
-        self._seen_cov = grown(self._seen_cov, size, 0.0)
-        self._young = grown(self._young, size, False)
-        self._tentative = grown(self._tentative, size, False)
-        self._views = grown(self._views, size, 0)
+        self._doubling.reserve_attributes(self, n, len(self._status))

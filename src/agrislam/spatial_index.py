@@ -16,7 +16,7 @@ from collections.abc import Callable
 import numpy as np
 from scipy.spatial import cKDTree
 
-from agrislam.growing import grown
+from agrislam.growing import Doubling
 
 TILE = 8.0  # m, the side of a tile: a few hundred plants, a few in one camera view
 
@@ -35,6 +35,7 @@ class SpatialIndex:
         self._round = np.empty(0, dtype=np.int64)  # what the sweep reads in turn
         self._xy = np.full((0, 2), np.nan)  # row = object id; NaN: not indexed
         self._built_xy = np.full((0, 2), np.nan)  # where its tile's tree holds it
+        self._doubling = Doubling({"_xy": np.nan, "_built_xy": np.nan})
         self._tiles: dict[tuple[int, int], tuple[cKDTree, np.ndarray]] = {}  # tree, ids
         self._dirty: set[tuple[int, int]] = set()  # tiles to build again
         self._fresh: dict[int, np.ndarray] = {}
@@ -81,10 +82,8 @@ class SpatialIndex:
         """New positions of objects: the next build uses them; one that moved more than half
         the margin since its tile was built gets its tile (and the one it is in now) built."""
         ids = np.asarray(ids, dtype=int)
-        if len(ids) and ids.max() >= len(self._xy):
-            size = max(int(ids.max()) + 1, 2 * len(self._xy))
-            self._xy = grown(self._xy, size, np.nan)
-            self._built_xy = grown(self._built_xy, size, np.nan)
+        if len(ids):
+            self._doubling.reserve_attributes(self, int(ids.max()) + 1, len(self._xy))
         xy = np.asarray(xy, dtype=float).reshape(-1, 2)
         self._xy[ids] = xy
         built = self._built_xy[ids]

@@ -28,7 +28,7 @@ from typing import Any
 import numpy as np
 
 from agrislam.geometry.key_table import KeyTable
-from agrislam.growing import grown
+from agrislam.growing import Doubling
 
 NONE = -1
 DEAD = -1
@@ -141,6 +141,9 @@ class FactorStore(MutableMapping[int, Factor]):
         self._value_len = np.zeros(capacity, dtype=np.int8)
         self._cov_dim = np.zeros(capacity, dtype=np.int8)  # 0: a scalar, the payload's first
         self._next = np.full((capacity, MAX_KEYS), NONE, dtype=np.int32)
+        self._doubling = Doubling(
+            {"_kind": DEAD, "_arity": 0, "_keys": 0, "_value_len": 0, "_cov_dim": 0, "_next": NONE}
+        )
         self._head = KeyTable()  # node key -> its latest factor's row
 
     def __getstate__(self) -> dict[str, Any]:
@@ -272,16 +275,4 @@ class FactorStore(MutableMapping[int, Factor]):
         return 0 if int(self._keys[row, 0]) == key else 1
 
     def _reserve(self, n: int) -> None:
-        capacity = len(self._kind)
-        if n <= capacity:
-            return
-        size = max(n, 2 * capacity)
-        for name, fill in (
-            ("_kind", DEAD),
-            ("_arity", 0),
-            ("_keys", 0),
-            ("_value_len", 0),
-            ("_cov_dim", 0),
-            ("_next", NONE),
-        ):
-            setattr(self, name, grown(getattr(self, name), size, fill))
+        self._doubling.reserve_attributes(self, n, len(self._kind))

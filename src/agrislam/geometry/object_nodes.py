@@ -13,7 +13,7 @@ from collections.abc import Iterator, KeysView
 import numpy as np
 from numpy.typing import ArrayLike
 
-from agrislam.growing import GrowingRows, grown
+from agrislam.growing import Doubling, GrowingRows
 
 REMOVED = -1
 
@@ -23,6 +23,7 @@ class ObjectNodes:
 
     def __init__(self) -> None:
         self._slot = np.full(16, REMOVED, dtype=np.int64)  # id -> its row, REMOVED: none
+        self._doubling = Doubling({"_slot": REMOVED})
         self._ids = GrowingRows(dtype=np.int64)  # row -> id (REMOVED once removed)
         self._xy = GrowingRows((2,))
         self._n = 0
@@ -65,8 +66,7 @@ class ObjectNodes:
         if object_id in self:  # as a dict: the id keeps its place
             self._xy.array[self._slot[object_id]] = np.asarray(xy, dtype=float).reshape(2)
             return
-        if object_id >= len(self._slot):
-            self._slot = grown(self._slot, max(object_id + 1, 2 * len(self._slot)), REMOVED)
+        self._doubling.reserve_attributes(self, object_id + 1, len(self._slot))
         self._slot[object_id] = len(self._ids)
         self._ids.append(object_id)
         self._xy.append(np.asarray(xy, dtype=float).reshape(2))

@@ -27,7 +27,7 @@ from agrislam.geometry.se2 import (
     to_map_frame,
     wrap_angle,
 )
-from agrislam.growing import grown
+from agrislam.growing import Doubling
 
 PoseLookup = Callable[[np.ndarray], np.ndarray]  # keyframe keys (k,) -> their poses (k, 3)
 
@@ -111,6 +111,7 @@ class Retired:
             "keyframes": np.zeros(0, dtype=np.uint64),
             "local": np.zeros((0, dim)),
         }
+        self._doubling = Doubling()
 
     def __len__(self) -> int:
         return self._n
@@ -145,9 +146,10 @@ class Retired:
         row = self._row.get(key)
         if row is None:
             row = self._n
-            if row == len(self._columns["keys"]):
-                for name, column in self._columns.items():
-                    self._columns[name] = grown(column, max(16, 2 * row), 0)
+            capacity = len(self._columns["keys"])
+            self._columns.update(
+                self._doubling.reserve(row + 1, capacity, lambda: self._columns) or {}
+            )
             self._row[key] = row
             self._n += 1
         for name, value in {"keys": key, "keyframes": keyframe, "local": local, **more}.items():

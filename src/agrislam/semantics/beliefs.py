@@ -20,9 +20,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from agrislam.config import ContinuousAttribute, DiscreteAttribute, FieldSchema, SemanticsConfig
-from agrislam.growing import grown
+from agrislam.growing import Doubling
 from agrislam.records import ContinuousMeasurement, DiscreteMeasurement, Measurement
 from agrislam.semantics import continuous, discrete, growth, heuristic
+
+_STORES = ("_p", "_mean", "_var")  # the attributes holding a column per attribute name
 
 
 class BeliefInputError(ValueError):
@@ -118,6 +120,7 @@ class BeliefTable:
         self._n_meas = np.zeros(c, dtype=np.int64)
         self._last_update = np.empty(c)
         self._belief_time = np.empty(c)
+        self._doubling = Doubling(dict.fromkeys(self._columns(), 0))
         self.n_ignored: dict[str, int] = dict.fromkeys(self._discrete_spec, 0)
 
     # ------------------------------------------------------------------ size and rows
@@ -147,16 +150,21 @@ class BeliefTable:
 
     def _reserve(self, n_rows: int) -> None:
         """Room for n_rows objects; capacity doubles, so growing is amortised O(1) per row."""
-        if n_rows <= self._capacity:
-            return
-        capacity = max(2 * self._capacity, n_rows)
-        for store in (self._p, self._mean, self._var):
-            for name, old in store.items():
-                store[name] = grown(old, capacity, 0)
-        self._n_meas = grown(self._n_meas, capacity, 0)
-        self._last_update = grown(self._last_update, capacity, 0)
-        self._belief_time = grown(self._belief_time, capacity, 0)
-        self._capacity = capacity
+        doubled = self._doubling.reserve(n_rows, self._capacity, self._columns)
+        for (attribute, name), column in (doubled or {}).items():
+            if name is None:
+                setattr(self, attribute, column)
+            else:
+                getattr(self, attribute)[name] = column
+        self._capacity = len(self._n_meas)
+
+    def _columns(self) -> dict[tuple[str, str | None], np.ndarray]:
+        """Every column, keyed by the attribute holding it and its name in that store."""
+        stores = {attribute: getattr(self, attribute) for attribute in _STORES}
+        return {
+            **{(a, name): c for a, store in stores.items() for name, c in store.items()},
+            **{(a, None): getattr(self, a) for a in ("_n_meas", "_last_update", "_belief_time")},
+        }
 
     def add(self, count: int, t: float) -> np.ndarray:
         """`count` new objects at time t with the initial beliefs; returns their row ids."""
