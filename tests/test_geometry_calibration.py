@@ -3,6 +3,9 @@ from pairs of sightings, robust to wrong pairs, bounded, and applied to odometry
 
 from __future__ import annotations
 
+from itertools import takewhile
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -10,6 +13,7 @@ from agrislam.config import AgrislamConfig, CalibrationConfig
 from agrislam.geometry import se2
 from agrislam.geometry.calibration import (
     FISHER_ITERATIONS,
+    Anchors,
     NoiseCalibration,
     NoiseScale,
     nearest_other,
@@ -19,6 +23,7 @@ from agrislam.geometry.calibration import (
 from agrislam.pipeline import run_survey
 from agrislam.sim.arena import ArenaSimulator
 from agrislam.sim.config import ArenaConfig
+from agrislam.sources.jsonl import read_log
 from agrislam.world import WorldModel
 
 Q = np.array([[4e-4, 1e-5, 2e-5], [1e-5, 1e-4, 0.0], [2e-5, 0.0, 9e-6]])
@@ -155,3 +160,41 @@ def test_nearest_other_is_the_distance_to_the_nearest_object_but_that_one():
     dist = np.array([[1.0, 3.0, 2.0], [5.0, 4.0, 6.0]])
     np.testing.assert_array_equal(nearest_other(dist), [[2.0, 1.0, 1.0], [4.0, 5.0, 4.0]])
     assert np.isinf(nearest_other(np.array([[1.0]]))).all()  # nothing else around
+
+
+def test_an_anchor_pairs_once_the_drift_since_it_outweighs_the_detection_noise():
+    """Anchors: the first sighting anchors; later ones pair against it (not against the
+    last one) until the chain's drift since it outweighs the detection terms, then that
+    sighting becomes the anchor; another robot's sighting does not pair with it."""
+    anchors, scale = Anchors(slots=8), NoiseScale.configured()
+    ids, cov = np.array([3, 12]), np.tile(0.01 * np.eye(2), (2, 1, 1))
+
+    def sighting(x: float, heading_var: float, robot: int = 0):
+        drift = odometry_parts(np.diag([0.0, 0.0, heading_var]))
+        xy = np.array([[x, 1.0], [x, 2.0]])
+        return anchors.pair(ids, robot, (xy, cov, drift), scale)
+
+    _, _, ripe = sighting(5.0, 0.0)
+    assert not ripe.any()  # anchored now
+    d, _, ripe = sighting(5.1, 1e-5)  # drift ~1e-5 * |p|^2 << 0.02: not ripe
+    assert not ripe.any() and np.allclose(d[:, 0], 0.1)
+    d, comps, ripe = sighting(5.3, 1e-2)
+    assert ripe.all() and np.allclose(d[:, 0], 0.3)  # against the first sighting
+    assert np.all(np.trace(comps[:, 2], axis1=1, axis2=2) > 0.02)
+    _, _, ripe = sighting(5.4, 1e-2, robot=1)
+    assert not ripe.any()  # robot 1 had no anchor: it takes the slots
+    d, _, ripe = sighting(5.45, 1e-2, robot=1)
+    assert not ripe.any() and np.allclose(d[:, 0], 0.05)
+
+
+def test_victoria_park_finds_its_heading_noise_without_a_config():
+    """The log's heading sigma is ~9x too small (examples/victoria_park.yaml sets 7x by
+    hand): in its first 2000 s the default config estimates a factor in the hand tuning's
+    range from its own re-sightings (4.2 from consecutive sightings alone)."""
+    log = Path(__file__).resolve().parents[2] / "shared/data/victoria_park/victoria_park.jsonl"
+    if not log.exists():
+        pytest.skip("Victoria Park data not present")
+    records = takewhile(lambda r: getattr(r, "t", 0.0) <= 2000.0, read_log(log))
+    noise = run_survey(records, WorldModel(AgrislamConfig())).noise
+    assert noise is not None and noise["anchor_pairs"] > 20
+    assert 5.0 <= noise["sigma_factors"]["heading"] <= 15.0

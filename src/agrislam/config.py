@@ -246,7 +246,8 @@ class CalibrationConfig(_Strict):
         gt=0.0,
         le=1.0,
         description="a pair counts only if every other object around lies 1/ratio times "
-        "farther from the detection than the pair's two sightings from each other",
+        "farther from the detection than the pair's two sightings from each other (or, "
+        "for a pair with an older sighting, than the detection from its object in the map)",
     )
     sigma_bounds: tuple[PositiveFloat, PositiveFloat] = Field(
         (1.0, 30.0),

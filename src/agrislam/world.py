@@ -26,7 +26,7 @@ from agrislam.association import (
 from agrislam.config import AgrislamConfig, AssociationConfig, FieldSchema
 from agrislam.geometry import se2
 from agrislam.geometry.backend import make_backend
-from agrislam.geometry.calibration import NoiseCalibration, nearest_other
+from agrislam.geometry.calibration import NoiseCalibration
 from agrislam.geometry.depth_bias import DepthBiasEstimator
 from agrislam.geometry.drift import since_seen
 from agrislam.geometry.gnss import GnssFixes
@@ -413,10 +413,9 @@ class WorldModel:
             placed.xy[:, None, :] - self.backend.object_positions(around)[None], axis=2
         )
         then = self.objects.last_seen(around, robot)
-        k = then.known
-        eligible = object_ids[:, None] == around[k][None, :]
-        spacing = nearest_other(dist)[:, k]
-        self.noise.observe(*frame, (then.xy[k], then.cov[k], then.drift[k]), eligible, spacing)
+        chosen = object_ids[:, None] == around[None, :]
+        last = (then.known, then.xy, then.cov, then.drift)
+        self.noise.observe(frame, robot, around, last, chosen, dist)
 
     @property
     def _first_own(self) -> int:

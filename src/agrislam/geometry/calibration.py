@@ -2,7 +2,9 @@
 from the run's own re-observations.
 
 A robot that sees an object again has, in its dead-reckoning frame, two positions of it:
-p_then and p_now (which detection is which object: `NoiseCalibration.observe`). Their
+p_then and p_now (which detection is which object: `NoiseCalibration.observe`), p_then
+from the sighting before (mostly detection noise) or from the object's anchor (`Anchors`,
+mostly drift). Their
 difference d is detection noise twice and the chain's drift in between (drift.py), so, for
 a static object rightly paired,
 
@@ -32,6 +34,7 @@ TERMS = ("detection", "translation", "heading")
 TRANSLATION, HEADING, CROSS = 0, 1, 2
 FISHER_ITERATIONS = 8
 MAX_STEP = 2.0  # the most one estimate changes a sigma factor by
+ANCHOR_SLOTS = 1 << 13  # objects a calibration keeps an anchor sighting of (`Anchors`)
 
 
 def odometry_parts(cov: np.ndarray) -> np.ndarray:
@@ -101,6 +104,50 @@ class Scoring:
         self.done += 1
 
 
+class Anchors:
+    """Per object, one robot's earlier sighting of it, kept until the robot's drift since
+    then outweighs the detection noise (both as scaled so far): paired with the sighting
+    that ripens it, it measures that drift. Consecutive sightings, a frame apart, share
+    most of their detection error and measure none: on Victoria Park every pair was one of
+    those and the heading factor stayed ~1 where the log's heading sigma is ~9x too small.
+    An object's anchor sits in slot id % slots: memory bounded at any field size, and a
+    collision only delays a pair."""
+
+    def __init__(self, slots: int) -> None:
+        self.ids = np.full(slots, -1, dtype=np.int64)
+        self.robot = np.zeros(slots, dtype=np.int64)
+        self.xy = np.zeros((slots, 2))
+        self.cov = np.zeros((slots, 2, 2))
+        self.drift = np.zeros((slots, 3, 3, 3))
+
+    def pair(
+        self,
+        ids: np.ndarray,
+        robot: int,
+        frame: tuple[np.ndarray, np.ndarray, np.ndarray],
+        scale: NoiseScale,
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Sightings of objects `ids` (n,) by `robot` now (`frame`: xy, cov, drift as
+        `pair_components` takes them) against their anchors: d, the components and which
+        pairs are ripe. The ripe ones and those without an anchor anchor here now."""
+        xy, cov, drift = frame
+        slot = ids % len(self.ids)
+        held = (self.ids[slot] == ids) & (self.robot[slot] == robot)
+        d, comps = pair_components(xy, cov, drift, self.xy[slot], self.cov[slot], self.drift[slot])
+        traces = np.trace(comps, axis1=2, axis2=3) * scale.variance  # (n, 3) scaled terms
+        ripe = held & (traces[:, 1:].sum(axis=1) >= traces[:, 0])
+        renew = ~held | ripe
+        at = slot[renew]
+        self.ids[at], self.robot[at], self.xy[at], self.cov[at] = (
+            ids[renew],
+            robot,
+            xy[renew],
+            cov[renew],
+        )
+        self.drift[at] = drift
+        return d, comps, ripe
+
+
 class NoiseCalibration:
     """The running estimate of `NoiseScale` from pairs of sightings (module docstring)."""
 
@@ -115,6 +162,8 @@ class NoiseCalibration:
         self.pairs_used = 0
         self.updates = 0
         self._scoring: Scoring | None = None  # an estimate under way
+        self._anchors = Anchors(ANCHOR_SLOTS)
+        self.anchor_pairs = 0  # pairs with an anchor sighting (`Anchors`)
 
     @property
     def enabled(self) -> bool:
@@ -122,28 +171,43 @@ class NoiseCalibration:
 
     def observe(
         self,
-        xy: np.ndarray,
-        cov: np.ndarray,
-        drift: np.ndarray,
-        seen: tuple[np.ndarray, np.ndarray, np.ndarray],
-        eligible: np.ndarray,
-        spacing: np.ndarray,
+        frame: tuple[np.ndarray, np.ndarray, np.ndarray],
+        robot: int,
+        objects: np.ndarray,
+        last: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
+        chosen: np.ndarray,
+        dist: np.ndarray,
     ) -> None:
-        """A frame of a robot: its detections (`pair_components`'s first arguments) with
-        the robot's own last sightings `seen` (xy, cov, drift) of k objects around them.
+        """A frame of robot `robot` (index): its detections `frame` (xy, cov, drift:
+        `pair_components`'s first arguments) with the k `objects` around them, the
+        robot's `last` sightings of those (known, xy, cov, drift as objects.Sightings),
+        which object the association `chosen` for each detection ((m, k) bool) and the
+        map-frame distances `dist` (m, k) between them.
 
-        A detection pairs with the object the association chose for it (`eligible`
-        (m, k)) where that pair is `ratio` times nearer than any other object of the map
-        around (`spacing` (m, k): the map-frame distance from the detection to the
-        nearest object other than each), a test free of any noise scale."""
-        if not self.enabled or len(xy) == 0 or len(seen[0]) == 0:
+        A detection pairs with its object's last sighting by the robot where their
+        difference is `ratio` times shorter than the distance from the detection to any
+        other object around, and with the object's anchor (`Anchors`) where, in the map,
+        the detection is `ratio` times nearer its object than any other: two tests free of
+        any noise scale (the anchor's by the map, since its difference is mostly drift,
+        and a test on it would keep only the pairs the drift left short)."""
+        if not self.enabled or len(frame[0]) == 0 or len(objects) == 0:
             return
-        i, j = np.nonzero(eligible)
+        i, j = np.nonzero(chosen)
         if len(i) == 0:
             return
-        d, comps = pair_components(xy[i], cov[i], drift, seen[0][j], seen[1][j], seen[2][j])
-        keep = np.linalg.norm(d, axis=1) <= self.config.ratio * spacing[i, j]
-        self.add_pairs(d[keep], comps[keep])
+        xy, cov, drift = frame[0][i], frame[1][i], frame[2]
+        spacing = self.config.ratio * nearest_other(dist)[i, j]
+        known, *last_seen = last
+        known = known[j]
+        seen = [column[j[known]] for column in last_seen]
+        d, comps = pair_components(xy[known], cov[known], drift, *seen)
+        short = np.linalg.norm(d, axis=1) <= spacing[known]
+        d_a, comps_a, ripe = self._anchors.pair(objects[j], robot, (xy, cov, drift), self.scale)
+        sure = ripe & (dist[i, j] <= spacing)
+        self.anchor_pairs += int(sure.sum())
+        self.add_pairs(
+            np.concatenate([d[short], d_a[sure]]), np.concatenate([comps[short], comps_a[sure]])
+        )
 
     def add_pairs(self, d: np.ndarray, components: np.ndarray) -> None:
         """Pairs of sightings: differences d (n, 2) and their covariance components
@@ -214,6 +278,7 @@ class NoiseCalibration:
             "pairs_seen": self.pairs_seen,
             "pairs_used": self.pairs_used,
             "updates": self.updates,
+            "anchor_pairs": self.anchor_pairs,
         }
 
 
