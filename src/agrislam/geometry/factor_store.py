@@ -141,9 +141,10 @@ class FactorStore(MutableMapping[int, Factor]):
         self._value_len = np.zeros(capacity, dtype=np.int8)
         self._cov_dim = np.zeros(capacity, dtype=np.int8)  # 0: a scalar, the payload's first
         self._next = np.full((capacity, MAX_KEYS), NONE, dtype=np.int32)
-        self._doubling = Doubling(
-            {"_kind": DEAD, "_arity": 0, "_keys": 0, "_value_len": 0, "_cov_dim": 0, "_next": NONE}
-        )
+        # rows past the used ones are written by `append` before any read: they grow as
+        # zeros, whose pages stay untouched until then (their fill would write them all)
+        names = ("_kind", "_arity", "_keys", "_value_len", "_cov_dim", "_next")
+        self._doubling = Doubling(dict.fromkeys(names, 0))
         self._head = KeyTable()  # node key -> its latest factor's row
 
     def __getstate__(self) -> dict[str, Any]:
