@@ -176,6 +176,19 @@ def test_one_output_that_fails_costs_that_file_only(tmp_path, monkeypatch):
     assert np.isfinite(metrics["run"]["wall_seconds"])
 
 
+def test_an_interest_surface_that_cannot_be_made_costs_the_surface_only(tmp_path, monkeypatch):
+    import agrislam.pipeline as pipeline
+
+    def broken(*args, **kwargs):
+        raise MemoryError("no memory for the grid")
+
+    monkeypatch.setattr(pipeline, "interest_surface", broken)
+    result = run_survey(open_source(SMALL), WorldModel(), tmp_path / "run")
+    assert result.error is None and result.snapshot.interest_surface is None
+    assert result.issues["no interest surface: MemoryError: no memory for the grid"] == 1
+    assert {"objects.csv", "map.sqlite", "report.png"} <= {p.name for p in result.outputs}
+
+
 def test_an_interrupt_between_records_writes_the_map_so_far(tmp_path):
     """What the CLI's Ctrl-C and SIGTERM do: stop after the record in hand."""
     seen = {"n": 0}
@@ -228,10 +241,18 @@ def test_a_released_world_lets_its_state_go_before_the_outputs(tmp_path, monkeyp
         alive_at_outputs.extend(part() is not None for part in parts)
         return write(*args, **kwargs)
 
-    write = pipeline.write_outputs
+    def interest_surface(*args, **kwargs):
+        alive_at_outputs.extend(part() is not None for part in parts)
+        return surface(*args, **kwargs)
+
+    write, surface = pipeline.write_outputs, pipeline.interest_surface
     monkeypatch.setattr(pipeline, "write_outputs", write_outputs)
+    monkeypatch.setattr(pipeline, "interest_surface", interest_surface)
     released = run_survey(open_source(SMALL), world, tmp_path / "released", release_world=True)
-    assert alive_at_outputs == [False, False, False]
+    assert alive_at_outputs == [False] * 6  # at the surface, then at the outputs
+    np.testing.assert_array_equal(
+        released.snapshot.interest_surface.values, kept.snapshot.interest_surface.values
+    )
     assert [p.name for p in released.outputs] == [p.name for p in kept.outputs]
     for name in ("objects.csv", "trajectory.csv"):
         assert (tmp_path / "released" / name).read_text() == (tmp_path / "kept" / name).read_text()

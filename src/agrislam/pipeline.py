@@ -18,7 +18,7 @@ import numpy as np
 
 from agrislam.checkpoint import FORMAT, Checkpoints, RunState, adopt
 from agrislam.collector import PacedCollector, release_free_heap
-from agrislam.config import OutputsConfig
+from agrislam.config import OutputsConfig, SemanticsConfig
 from agrislam.evaluation import association_counts, evaluate, write_metrics
 from agrislam.ground_truth import TruthObjects
 from agrislam.growing import GrowingRows
@@ -26,6 +26,7 @@ from agrislam.perception.label_map import LabelMap
 from agrislam.records import Detections, Meta, Record, TruthObject, TruthPose
 from agrislam.season import SeasonRun
 from agrislam.season_outputs import season_outputs
+from agrislam.semantics.heuristic import interest_surface
 from agrislam.sinks.atomic import atomic_path
 from agrislam.sinks.csv import write_objects_csv, write_table, write_trajectory_csv
 from agrislam.sinks.foxglove import write_foxglove_mcap
@@ -80,17 +81,11 @@ class Truth:
         self.detection_truths.extend(truths)
         self.detection_objects.extend(object_ids)
 
-    def association_arrays(self, world: WorldModel) -> tuple[np.ndarray, np.ndarray]:
-        """(truth number, -1 clutter) and final object id of every detection."""
+    def association_arrays(self, final_ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(truth number, -1 clutter) and final object id of every detection, given the
+        object each id stands for at the end (`final_ids`, by id: merges followed)."""
         truths = self.detection_truths.array.astype(np.int64)
-        return truths, world.resolve(self.detection_objects.array.astype(np.int64))
-
-    def associations(self, world: WorldModel) -> list[tuple[str | None, int]]:
-        """(truth_id, final object id) of every detection (truth_id None for clutter)."""
-        names = list(self.objects.numbers)
-        truths, objects = self.association_arrays(world)
-        ids = [names[t] if t >= 0 else None for t in truths.tolist()]
-        return list(zip(ids, objects.tolist(), strict=True))
+        return truths, final_ids[self.detection_objects.array]
 
 
 @dataclass(slots=True)
@@ -245,16 +240,20 @@ def _run(
             "seconds": checkpoints.seconds,
         }
     result.snapshot = _snapshot(world, result)
-    if result.snapshot is not None and truth.present:
-        result.metrics = _score(result, world, truth)
+    scoring = result.snapshot is not None and truth.present
+    final_ids = world.resolve(np.arange(len(world.objects))) if scoring else None
+    writing = folder is not None and (counts or error is None)
+    extra = season_outputs(season, world, result.snapshot) if writing else None
+    if writing and release_world:
+        _let_go(world)  # the scores, the surface and the outputs reuse its memory
+    if final_ids is not None:
+        result.metrics = _score(result, final_ids, truth)
+    _add_surface(result, world.config.semantics)
     summary = _summary(result)
     if season is not None:
         summary["season"] = season.summary()
         result.season = summary["season"]
-    if folder is not None and (counts or error is None):
-        extra = season_outputs(season, world, result.snapshot)
-        if release_world:
-            _let_go(world)
+    if folder is not None and writing:
         kept = None  # a stopped run keeps its last checkpoint in map.sqlite, to resume
         if checkpoints is not None and error is not None:
             kept = checkpoints.last or {"format": FORMAT}
@@ -302,20 +301,34 @@ def _feed(record: Record, world: WorldModel, truth: Truth) -> int:
 
 
 def _snapshot(world: WorldModel, result: RunResult) -> MapSnapshot | None:
-    """The world's map, also after an error (then without the interest surface if need
-    be); None, with an issue, if the world cannot give one at all."""
-    for surface in (True, False):
-        try:
-            return world.snapshot(with_surface=surface)
-        except Exception as err:
-            failed = describe(err)
+    """The world's map without its interest surface (`_add_surface`), also after an
+    error; None, with an issue, if the world cannot give one at all."""
+    try:
+        return world.snapshot(with_surface=False)
+    except Exception as err:
+        failed = describe(err)
     result.issues[f"no map: the snapshot failed ({failed})"] = 1
     if result.error is None:
         result.error = RuntimeError(f"the map could not be read: {failed}")
     return None
 
 
-def _score(result: RunResult, world: WorldModel, truth: Truth) -> dict[str, Any] | None:
+def _add_surface(result: RunResult, config: SemanticsConfig) -> None:
+    """The map's interest surface, from its objects' positions and interest alone: made
+    once the world's state may be released, the grids reuse its memory (issue 14); an
+    issue, and a map without it, if it cannot be made."""
+    snapshot = result.snapshot
+    if snapshot is None or len(snapshot.objects.ids) == 0:
+        return
+    try:
+        surface = interest_surface(snapshot.objects.xy, snapshot.objects.interest, config)
+    except Exception as err:
+        result.issues[f"no interest surface: {describe(err)}"] = 1
+        return
+    result.snapshot = dataclasses.replace(snapshot, interest_surface=surface)
+
+
+def _score(result: RunResult, final_ids: np.ndarray, truth: Truth) -> dict[str, Any] | None:
     assert result.snapshot is not None
     try:
         metrics = evaluate(
@@ -325,7 +338,7 @@ def _score(result: RunResult, world: WorldModel, truth: Truth) -> dict[str, Any]
             min_plant_distance=truth.min_plant_distance,
         )
         if len(truth.detection_objects):
-            metrics["association"] = association_counts(*truth.association_arrays(world))
+            metrics["association"] = association_counts(*truth.association_arrays(final_ids))
     except Exception as err:
         result.issues[f"no scores: evaluation failed ({describe(err)})"] = 1
         return None
