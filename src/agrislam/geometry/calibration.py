@@ -4,9 +4,8 @@ from the run's own re-observations.
 A robot that sees an object again has, in its dead-reckoning frame, two positions of it:
 p_then and p_now (which detection is which object: `NoiseCalibration.observe`), p_then
 from the sighting before (mostly detection noise) or from the object's anchor (`Anchors`,
-mostly drift). Their
-difference d is detection noise twice and the chain's drift in between (drift.py), so, for
-a static object rightly paired,
+mostly drift). Their difference d is detection noise twice and the chain's drift in
+between (drift.py), so, for a static object rightly paired,
 
     Cov(d) = v_det (R_then + R_now) + v_trans J dC_trans J^T + v_head J dC_head J^T
 
@@ -138,13 +137,8 @@ class Anchors:
         ripe = held & (traces[:, 1:].sum(axis=1) >= traces[:, 0])
         renew = ~held | ripe
         at = slot[renew]
-        self.ids[at], self.robot[at], self.xy[at], self.cov[at] = (
-            ids[renew],
-            robot,
-            xy[renew],
-            cov[renew],
-        )
-        self.drift[at] = drift
+        self.ids[at], self.robot[at], self.drift[at] = ids[renew], robot, drift
+        self.xy[at], self.cov[at] = xy[renew], cov[renew]
         return d, comps, ripe
 
 
