@@ -3,6 +3,8 @@ GTSAM factor, the history tables written and read back, survey_start in the log.
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 
@@ -144,6 +146,30 @@ def test_history_tables_round_trip(tmp_path):
     gone = back.plant(4)[0]
     assert gone["status"] == "gone" and gone["p_gone"] == pytest.approx(0.97)
     assert gone["beliefs"]["length"] == [0.3, 0.02]
+
+
+def test_history_rows_are_made_as_read_in_parts(monkeypatch):
+    """A whole field's rows are not held as tuples (issue 14): they are made from the
+    survey's arrays each time they are read, a part at a time, the same every time."""
+    from agrislam.sinks import history
+
+    n = 7
+    rows = plant_rows(
+        2,
+        np.arange(n),
+        ["seen"] * n,
+        np.arange(2 * n, dtype=float).reshape(n, 2),
+        np.tile(np.array([[1.0, 0.5], [0.5, 2.0]]), (n, 1, 1)),
+        np.full(n, 3),
+        np.linspace(0.0, 1.0, n),
+        np.full(n, np.nan),
+        {"size": np.full((n, 3), 1 / 3)},
+    )
+    whole = list(rows)
+    monkeypatch.setattr(history, "ROWS_AT_ONCE", 3)
+    assert list(rows) == whole and list(rows) == whole  # read again, in parts of 3
+    assert len(whole) == n and whole[6][:10] == (6, 2, "seen", 12.0, 13.0, 1.0, 0.5, 2.0, 3, 1.0)
+    assert whole[6][10] is None and json.loads(whole[6][11]) == {"size": [0.333333] * 3}
 
 
 def test_survey_start_is_written_and_read_as_utc():

@@ -15,7 +15,7 @@ from agrislam.config import AgrislamConfig
 from agrislam.prior.map import PriorMap
 from agrislam.season import SeasonRun
 from agrislam.sinks.csv import write_table
-from agrislam.sinks.history import History, plant_rows, read_history, write_history
+from agrislam.sinks.history import ChainedRows, History, plant_rows, read_history, write_history
 from agrislam.sinks.season_figures import growth_attribute, write_season_figure
 from agrislam.sinks.sqlite import load_map
 from agrislam.snapshot import MapSnapshot
@@ -41,7 +41,7 @@ def survey_history(season: SeasonRun | None, world: WorldModel, snapshot: MapSna
         status[np.isin(o.ids, changes.new)] = "new"
         status[np.isin(o.ids, changes.unconfirmed)] = "unconfirmed"
         status[np.isin(o.ids, changes.unseen)] = "not_looked_at"
-    rows = plant_rows(
+    mine = plant_rows(
         survey,
         o.ids,
         status,
@@ -52,6 +52,7 @@ def survey_history(season: SeasonRun | None, world: WorldModel, snapshot: MapSna
         np.full(len(o.ids), np.nan),
         beliefs,
     )
+    parts = [earlier.rows, mine]
     if changes is not None and len(changes.gone):
         gone = changes.gone
         g_beliefs = {
@@ -61,7 +62,7 @@ def survey_history(season: SeasonRun | None, world: WorldModel, snapshot: MapSna
                 for n, mv in world.beliefs.continuous_beliefs(gone, t).items()
             },
         }
-        rows += plant_rows(
+        gone_rows = plant_rows(
             survey,
             gone,
             ["gone"] * len(gone),
@@ -72,13 +73,14 @@ def survey_history(season: SeasonRun | None, world: WorldModel, snapshot: MapSna
             changes.p_gone,
             g_beliefs,
         )
+        parts.append(gone_rows)
     summary = season.summary() if season is not None else {"survey": survey, "localised": None}
     summary["survey"] = survey
     surveys = [
         *earlier.surveys,
         (survey, t_abs, int(bool(season and season.merged)), json.dumps(summary)),
     ]
-    return History(surveys, [*earlier.rows, *rows])
+    return History(surveys, ChainedRows(tuple(parts)))
 
 
 def season_outputs(

@@ -8,8 +8,10 @@ it). Tables of their own, written into the same atomic file after `sqlite.save_m
 
 from __future__ import annotations
 
+import itertools
 import json
 import sqlite3
+from collections.abc import Iterable, Iterator
 from contextlib import closing
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -31,6 +33,7 @@ CREATE TABLE plant_history (
     PRIMARY KEY (plant_id, survey)) WITHOUT ROWID;
 CREATE INDEX plant_history_by_survey ON plant_history (survey, status);
 """
+ROWS_AT_ONCE = 4096  # plants turned into rows at a time
 COLUMNS = (
     "plant_id, survey, status, x, y, cov_xx, cov_xy, cov_yy, n_meas, interest, p_gone, beliefs"
 )
@@ -38,10 +41,11 @@ COLUMNS = (
 
 @dataclass
 class History:
-    """Every survey and every plant row of a map's history (rows as tuples of COLUMNS)."""
+    """Every survey and every plant row of a map's history (rows as tuples of COLUMNS,
+    iterable more than once: a list, `PlantRows` or `ChainedRows`)."""
 
     surveys: list[tuple[int, float, int, str]] = field(default_factory=list)
-    rows: list[tuple[Any, ...]] = field(default_factory=list)
+    rows: Iterable[tuple[Any, ...]] = field(default_factory=list)
 
     @property
     def next_survey(self) -> int:
@@ -60,6 +64,54 @@ class History:
         return sorted(out, key=lambda r: r["survey"])
 
 
+@dataclass(frozen=True)
+class PlantRows:
+    """History rows of one survey, made from its arrays as they are read: a whole field's
+    rows as tuples and JSON (about 1 KB a plant) never sit in memory at once (issue 14).
+    Iterable again and again; `beliefs` name -> (k, n) (discrete probabilities or
+    continuous (mean, var)), stored as JSON per plant."""
+
+    survey: int
+    ids: np.ndarray
+    status: np.ndarray
+    xy: np.ndarray
+    cov: np.ndarray
+    n_meas: np.ndarray
+    interest: np.ndarray
+    p_gone: np.ndarray
+    beliefs: dict[str, np.ndarray]
+
+    def __len__(self) -> int:
+        return len(self.ids)
+
+    def __iter__(self) -> Iterator[tuple[Any, ...]]:
+        for start in range(0, len(self.ids), ROWS_AT_ONCE):
+            yield from self._rows(slice(start, start + ROWS_AT_ONCE))
+
+    def _rows(self, part: slice) -> Iterator[tuple[Any, ...]]:
+        names = list(self.beliefs)
+        n = len(self.ids[part])
+        per_plant = (
+            zip(*(np.round(self.beliefs[b][part], 6).tolist() for b in names), strict=True)
+            if names
+            else (() for _ in range(n))
+        )
+        for i, s, p, c, m, h, g, b in zip(
+            self.ids[part].tolist(),
+            self.status[part].tolist(),
+            self.xy[part].tolist(),
+            self.cov[part].reshape(-1, 4)[:, [0, 1, 3]].tolist(),
+            self.n_meas[part].tolist(),
+            self.interest[part].tolist(),
+            self.p_gone[part].tolist(),
+            per_plant,
+            strict=True,
+        ):
+            gone = None if not np.isfinite(g) else g
+            belief = json.dumps(dict(zip(names, b, strict=True)))
+            yield (i, self.survey, str(s), *p, *c, m, h, gone, belief)
+
+
 def plant_rows(
     survey: int,
     ids: np.ndarray,
@@ -70,43 +122,29 @@ def plant_rows(
     interest: np.ndarray,
     p_gone: np.ndarray,
     beliefs: dict[str, np.ndarray],
-) -> list[tuple[Any, ...]]:
-    """History rows of one survey; `beliefs` name -> (k, n) (discrete probabilities or
-    continuous (mean, var)), stored as JSON per plant."""
-    names = list(beliefs)
-    per_plant = (
-        zip(*(np.round(beliefs[n], 6).tolist() for n in names), strict=True)
-        if names
-        else (() for _ in range(len(ids)))
+) -> PlantRows:
+    """History rows of one survey, made as they are read (`PlantRows`)."""
+    return PlantRows(
+        survey,
+        np.asarray(ids, dtype=np.int64),
+        np.asarray(status, dtype=object),
+        np.asarray(xy, dtype=float).reshape(-1, 2),
+        np.asarray(cov, dtype=float).reshape(-1, 2, 2),
+        np.asarray(n_meas, dtype=np.int64),
+        np.asarray(interest, dtype=float),
+        np.asarray(p_gone, dtype=float),
+        beliefs,
     )
-    cov = np.asarray(cov, dtype=float).reshape(-1, 2, 2)
-    return [
-        (
-            int(i),
-            survey,
-            str(s),
-            float(p[0]),
-            float(p[1]),
-            float(c[0, 0]),
-            float(c[0, 1]),
-            float(c[1, 1]),
-            int(m),
-            float(h),
-            None if not np.isfinite(g) else float(g),
-            json.dumps(dict(zip(names, b, strict=True))),
-        )
-        for i, s, p, c, m, h, g, b in zip(
-            np.asarray(ids).tolist(),
-            status,
-            xy,
-            cov,
-            np.asarray(n_meas).tolist(),
-            np.asarray(interest, dtype=float).tolist(),
-            np.asarray(p_gone, dtype=float).tolist(),
-            per_plant,
-            strict=True,
-        )
-    ]
+
+
+@dataclass(frozen=True)
+class ChainedRows:
+    """Several surveys' rows read one after the other, as often as asked."""
+
+    parts: tuple[Iterable[tuple[Any, ...]], ...]
+
+    def __iter__(self) -> Iterator[tuple[Any, ...]]:
+        return itertools.chain.from_iterable(self.parts)
 
 
 def write_history(path: str | Path, history: History) -> None:
