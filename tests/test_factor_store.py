@@ -5,6 +5,7 @@ comes out bit for bit, ids are stable, and the factors of a node are found after
 from __future__ import annotations
 
 import errno
+import os
 import pickle
 import tempfile
 from collections import Counter
@@ -12,7 +13,7 @@ from collections import Counter
 import numpy as np
 import pytest
 
-from agrislam.geometry.factor_store import Factor, FactorStore
+from agrislam.geometry.factor_store import RESERVED_ROWS, Factor, FactorStore
 
 
 def odometry(a: int, b: int, dx: float) -> Factor:
@@ -40,6 +41,26 @@ def test_factors_come_back_exactly_as_stored():
             assert np.array_equal(back.cov, factor.cov)
     assert store.kind(3) == "row_member"
     assert store.nbytes() < 4 * 200  # a few hundred bytes a factor, not a Python object each
+
+
+def resident_mb() -> float:
+    with open("/proc/self/statm") as statm:
+        return int(statm.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 2**20
+
+
+@pytest.mark.skipif(not os.path.exists("/proc/self/statm"), reason="reads Linux's /proc")
+def test_the_reserved_rows_cost_memory_only_when_written():
+    """The columns are made for a whole field's factors at once and never double (issue
+    14): memory is what the rows written take, and a pickle holds those rows only."""
+    before = resident_mb()
+    store = FactorStore()
+    for n in range(1000):
+        store.append(odometry(n, n + 1, 0.5))
+    assert len(store._kind) == RESERVED_ROWS and resident_mb() - before < 50
+    assert store.nbytes() == 1000 * 28
+    back = pickle.loads(data := pickle.dumps(store))
+    assert len(data) < 200_000 and len(back._kind) == RESERVED_ROWS
+    assert back[999].keys == (999, 1000) and back.append(odometry(5, 6, 0.1)) == 1000
 
 
 def test_the_factors_of_a_node_after_removals():

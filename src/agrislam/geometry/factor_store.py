@@ -28,7 +28,7 @@ from typing import Any
 import numpy as np
 
 from agrislam.geometry.key_table import KeyTable
-from agrislam.growing import Doubling
+from agrislam.growing import Doubling, grown
 
 NONE = -1
 DEAD = -1
@@ -36,6 +36,12 @@ DEAD = -1
 MAX_KEYS, MAX_VALUE, MAX_COV = 2, 6, 3
 PAYLOAD = MAX_VALUE + MAX_COV * MAX_COV  # a row's value, then its covariance
 CHUNK_ROWS = 1 << 15  # payload rows a chunk holds: 3.9 MB
+# the columns are made for this many rows at once (470 MB of address space): zeros, whose
+# pages the system gives only when a row is first written, so a small survey costs what it
+# uses and a whole field's store does not double (a doubling holds the old and the new
+# columns together: +59 MB at 2^21 rows, the 100,000-plant run's peak in its steps)
+RESERVED_ROWS = 1 << 24
+COLUMNS = ("_kind", "_arity", "_keys", "_value_len", "_cov_dim", "_next")
 
 
 @dataclass(slots=True)
@@ -125,7 +131,7 @@ class FactorStore(MutableMapping[int, Factor]):
 
     def __init__(
         self,
-        capacity: int = 1024,
+        capacity: int = RESERVED_ROWS,
         issues: Counter[str] | None = None,
         chunk_rows: int = CHUNK_ROWS,
     ) -> None:
@@ -135,26 +141,30 @@ class FactorStore(MutableMapping[int, Factor]):
         self._code: dict[str, int] = {}
         self._n = 0  # rows used (ids handed out)
         self._alive = 0
-        self._kind = np.full(capacity, DEAD, dtype=np.int8)
+        # rows past the used ones are written by `append` before any read: they are zeros,
+        # whose pages stay untouched until then (a fill would write them all)
+        self._kind = np.zeros(capacity, dtype=np.int8)
         self._arity = np.zeros(capacity, dtype=np.int8)
         self._keys = np.zeros((capacity, MAX_KEYS), dtype=np.uint64)
         self._value_len = np.zeros(capacity, dtype=np.int8)
         self._cov_dim = np.zeros(capacity, dtype=np.int8)  # 0: a scalar, the payload's first
-        self._next = np.full((capacity, MAX_KEYS), NONE, dtype=np.int32)
-        # rows past the used ones are written by `append` before any read: they grow as
-        # zeros, whose pages stay untouched until then (their fill would write them all)
-        names = ("_kind", "_arity", "_keys", "_value_len", "_cov_dim", "_next")
-        self._doubling = Doubling(dict.fromkeys(names, 0))
+        self._next = np.zeros((capacity, MAX_KEYS), dtype=np.int32)
+        self._doubling = Doubling(dict.fromkeys(COLUMNS, 0))
         self._head = KeyTable()  # node key -> its latest factor's row
 
     def __getstate__(self) -> dict[str, Any]:
+        """The rows in use (a pickle of the reserved columns would write them all)."""
         state = self.__dict__.copy()
+        state.update({name: getattr(self, name)[: self._n] for name in COLUMNS})
         state["_payload"] = (self._payload.chunk_rows, self._payload.all(self._n))
         return state
 
     def __setstate__(self, state: dict[str, Any]) -> None:
         chunk_rows, rows = state.pop("_payload")
         self.__dict__.update(state)
+        for name in COLUMNS:
+            column = state[name]
+            setattr(self, name, grown(column, max(RESERVED_ROWS, len(column)), 0))
         self._payload = PayloadChunks(chunk_rows, self.issues)
         self._payload.load(rows)
 
@@ -262,10 +272,9 @@ class FactorStore(MutableMapping[int, Factor]):
         self._head.pop(key, None)
 
     def nbytes(self) -> int:
-        """Bytes of the columns in memory (without the per-node list heads and the
-        payload chunk being filled)."""
-        columns = (self._kind, self._arity, self._keys, self._value_len, self._cov_dim)
-        return sum(c.nbytes for c in (*columns, self._next))
+        """Bytes of the rows in use (without the per-node list heads and the payload
+        chunk being filled)."""
+        return sum(getattr(self, name)[: self._n].nbytes for name in COLUMNS)
 
     # -------------------------------------------------------------- helpers
     def _live(self, row: int) -> bool:
