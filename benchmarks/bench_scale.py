@@ -6,7 +6,11 @@ pipeline with every output written to a temporary folder), which reports its own
 resident set size (`getrusage`), so one survey's memory never counts for another. A child
 with a 40-plant survey gives the interpreter's and libraries' baseline; the slope per plant
 (between the two largest sizes) extrapolates the largest to 1,000,000 plants. Survey time
-is the survey's own (its time stamps) and its frames at 1 frame per second. Accuracy is
+is the survey's own (its time stamps) and its frames at 1 frame per second. The smallest
+size runs again after the largest: this machine's speed drifts by 20-30 % over the half
+hour the largest takes (the same 400-plant survey: 4.3 to 5.7 ms median step within an
+hour), so the step ratios are against both of its runs' steps together, and both rows are
+printed to show the drift. Accuracy is
 the simulator's truth: the trajectory's RMS against dead reckoning's (the default survey
 has no GNSS, so a large field bends along its rows: rigid alignment cannot take that out)
 and the association's purity.
@@ -150,18 +154,20 @@ def report(name: str, src: Path, sizes: list[int], seed: int, changes: dict[str,
     for plants in sizes:
         rows.append(measure(plants, seed, src, changes))
         console.print(f"{name}: {plants:,} plants done in {rows[-1]['process_seconds']:.0f} s")
-    console.print(table(name, rows, base))
+    again = measure(sizes[0], seed, src, changes) if len(sizes) > 1 else None
+    console.print(table(name, rows + ([again] if again else []), base))
     slope = slope_mb_per_plant(rows, base)
     largest = rows[-1]
     million = (largest["max_rss_mb"] + slope * (TARGET_PLANTS - largest["plants"])) / 1024
-    ms = [np.asarray(r["steps_ms"]) for r in (rows[0], largest)]
+    smallest = np.concatenate([r["steps_ms"] for r in (rows[0], again) if r is not None])
+    ms = [smallest, np.asarray(largest["steps_ms"])]
     ratio = [f(ms[1]) / f(ms[0]) for f in (np.median, lambda m: np.percentile(m, 95))]
     console.print(
         f"{name}: slope {slope * 1024:.2f} KB per plant between the largest sizes (target <= 4); "
         f"{TARGET_PLANTS:,} plants -> about {million:.1f} GB max RSS; "
-        f"step median / p95 at {largest['plants']:,} vs {rows[0]['plants']:,} plants: "
+        f"step median / p95 at {largest['plants']:,} vs {rows[0]['plants']:,} plants (both runs): "
         f"{ratio[0]:.2f}x / {ratio[1]:.2f}x (target <= 1.5x); "
-        f"max step {max(m.max() for m in ms):.0f} ms (target <= 100)"
+        f"max step {max(max(r['steps_ms']) for r in rows):.0f} ms at any size (target <= 100)"
     )
 
 
