@@ -285,7 +285,7 @@ def test_keyframes_beyond_the_kept_ones_fold_away_and_hold_what_hangs_on_them(sm
     frozen = {k for k in anchors.tolist() if k in g._frozen}
     assert frozen and set(anchors.tolist()) - frozen <= g._live  # on a keyframe, live or held
     assert not frozen & g._live
-    assert set(g._cov_cache) <= g._live  # no covariance kept per retired node
+    assert g._marginals.held() <= g._live  # no covariance kept per retired node
     online, exact = b.positions(g, ids), b.positions(batch, ids)
     gap = [np.linalg.norm(online[k] - exact[k]) for k in ids]
     # moved onto the newest keyframe instead, they swung with its heading: 0.024 m
@@ -601,9 +601,9 @@ def test_a_marginal_read_serves_each_robot_covariance_reuse_steps_steps(robots):
     g.update()
     key = g.graph.require_objects(np.array([0]))[0]
     first = g.object_covariances(np.array([0]))
-    read_at = g._cov_cache[key][0]
+    read_at = g._marginals.read_at(key)
     steps = 0
-    while g._cov_cache[key][0] == read_at:  # the robots drive on without seeing it
+    while g._marginals.read_at(key) == read_at:  # the robots drive on without seeing it
         name = list(starts)[steps % robots]
         g.add_odometry(name, 1.0 + steps, np.array([0.1, 0.0, 0.0]), np.diag([1e-4, 1e-4, 1e-5]))
         g.update()

@@ -67,6 +67,7 @@ from agrislam.geometry.isam_state import (
     serialised_isam2,
 )
 from agrislam.geometry.key_table import KeyTable
+from agrislam.geometry.marginal_cache import MarginalCache
 from agrislam.geometry.retired import Anchored, FrozenKeyframes, RetiredObjects, RetiredPoses
 from agrislam.geometry.se2 import between, compose, pose_uncertainty_at, rotation, to_robot_frame
 
@@ -96,7 +97,7 @@ class IncrementalBackend(BackendBase):
         self._keyframes: dict[str, list[int]] = {}  # robot -> its keyframes, oldest first
         self._last_seen = KeyTable()  # object key -> the pose it was last seen from
         self._seen_step = KeyTable()  # object key -> the step it was last seen at
-        self._cov_cache: dict[int, tuple[int, np.ndarray]] = {}  # key -> (step, covariance)
+        self._marginals = MarginalCache()
         self._step = 0
         self._window_start = 0
         self._folded_heading: dict[int, float] = {}  # keyframe -> heading when folded onto
@@ -113,7 +114,6 @@ class IncrementalBackend(BackendBase):
         self._retired_objects.settle()
         state = self.__dict__.copy()
         state["_isam"] = serialised_isam2(self._isam, [s for s, _ in self._slots.ordered()])
-        state["_cov_cache"] = {}
         return state
 
     def __setstate__(self, state: dict) -> None:
@@ -169,6 +169,7 @@ class IncrementalBackend(BackendBase):
             obj = factor.keys[1]
             if key_kind(obj) != POSE:
                 self._last_seen[obj], self._seen_step[obj] = factor.keys[0], self._step
+                self._marginals.sighted(obj)
         self._pending.add(make_factor(factor, self.slam), Entry(factor.keys, fid))
 
     def _remove(self, fid: int) -> None:
@@ -196,8 +197,9 @@ class IncrementalBackend(BackendBase):
             for anchor in anchors:
                 self._push_anchor(into, anchor)
         self._pending.drop_node(key)
-        for table in (self._guess, self._last_seen, self._seen_step, self._cov_cache):
+        for table in (self._guess, self._last_seen, self._seen_step):
             table.pop(key, None)
+        self._marginals.forget(key)
         self._live.discard(key)
         self._permanent.discard(key)
 
@@ -253,8 +255,7 @@ class IncrementalBackend(BackendBase):
         if filled is not None:
             self._slots.fill(filled)
             for _, entry in filled:  # what the update measured is read again
-                for key in entry.keys:
-                    self._cov_cache.pop(key, None)
+                self._marginals.measured(entry.keys)
 
     def _isolate(
         self, err: RuntimeError, extra: gtsam.NonlinearFactorGraph | None
@@ -280,7 +281,7 @@ class IncrementalBackend(BackendBase):
     def _rebuild(self) -> None:
         """A fresh iSAM2 of the live factors at the same linearisation point."""
         self._isam = rebuilt_isam2(self._isam, self._slots, self._pending, isam2(self.slam))
-        self._cov_cache.clear()
+        self._marginals.clear()
 
     def _fold(self) -> None:
         """Keyframe each robot's latest pose; marginalise the rest of the window out (and
@@ -314,7 +315,7 @@ class IncrementalBackend(BackendBase):
             self._pending.remove(slots)
             self._live -= window
             for key in window:  # a live node's alone (it grew with the field)
-                self._cov_cache.pop(key, None)
+                self._marginals.drop(key)
             self._solve_pending(marginal)
         self._window_start = self._step
         self.rolls += 1
@@ -454,7 +455,7 @@ class IncrementalBackend(BackendBase):
             self.issues[f"refine skipped: {str(err).strip().splitlines()[0]}"] += 1
             return
         self._isam = fresh
-        self._cov_cache.clear()
+        self._marginals.clear()
         self.refines += 1
         self.whole_refine = self.refines
         if not self.window:
@@ -469,7 +470,7 @@ class IncrementalBackend(BackendBase):
         is folded onto (bounded by the keyframes, not the plants); the headings the folded
         factors were linearised at are taken as they are now."""
         self._converge()
-        self._cov_cache.clear()
+        self._marginals.clear()
         self._folded_heading = {k: self._estimate(k)[2] for k in self._folded_heading}
         self.refines += 1
 
@@ -529,14 +530,12 @@ class IncrementalBackend(BackendBase):
         """A node's marginal covariance, read again from iSAM2 (a Bayes-tree traversal)
         once each robot has taken `slam.covariance_reuse_steps` steps since it was read
         (robots share the step count: five reading every ten steps would each read every
-        other frame, a cost growing with the robots, issue 11) or a new factor touched it."""
+        other frame, a cost growing with the robots, issue 11) or a new factor touched it
+        (geometry/marginal_cache.py)."""
         if (frozen := self._frozen.covariance(key)) is not None:
             return frozen
-        cached = self._cov_cache.get(key)
         reuse = self.slam.covariance_reuse_steps * max(len(self.graph.robots), 1)
-        if cached is None or self._step - cached[0] >= reuse:
-            cached = self._cov_cache[key] = (self._step, self._isam.marginalCovariance(key))
-        return cached[1]
+        return self._marginals.get(key, self._step, reuse, self._isam.marginalCovariance)
 
     def _frames(self, keyframes: np.ndarray) -> np.ndarray:
         """(k, 3) current pose of each of `keyframes`, each distinct one read once."""

@@ -1,0 +1,70 @@
+"""Marginal covariances read from iSAM2 for association, kept for a few steps: each read
+is a Bayes-tree traversal, and a frame reads one for each of its candidates (issue 11:
+a quarter of a run's time when every read was fresh).
+
+A covariance serves `reuse` steps, then is read again. A new factor on a node makes it
+read again sooner, except on an object already seen `SETTLED` times: one more sighting
+shrinks its covariance by about a `SETTLED + 1`-th, less than the steps of reuse already
+let it change, and such re-sightings were three quarters of the reads at 10,000 plants.
+An older covariance only overstates the uncertainty (the gate is the wider for it)."""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterable
+
+import numpy as np
+
+from agrislam.geometry.key_table import KeyTable
+
+SETTLED = 5  # sightings after which one more does not call for a fresh read
+
+
+class MarginalCache:
+    """key -> the marginal covariance last read, with the step it was read at."""
+
+    def __init__(self) -> None:
+        self._read: dict[int, tuple[int, np.ndarray]] = {}  # live nodes' only
+        self._sightings = KeyTable()  # object key -> detections so far
+
+    def __getstate__(self) -> dict[str, object]:
+        """A pickle keeps the sightings; the covariances are read again."""
+        return {"_read": {}, "_sightings": self._sightings}
+
+    def get(self, key: int, step: int, reuse: int, read: Callable[[int], np.ndarray]) -> np.ndarray:
+        """The covariance of `key` as read at most `reuse` steps ago (else `read` now)."""
+        cached = self._read.get(key)
+        if cached is None or step - cached[0] >= reuse:
+            cached = self._read[key] = (step, read(key))
+        return cached[1]
+
+    def held(self) -> set[int]:
+        """The keys whose covariance is kept."""
+        return set(self._read)
+
+    def read_at(self, key: int) -> int | None:
+        """The step the kept covariance of `key` was read at (None: none is kept)."""
+        cached = self._read.get(key)
+        return None if cached is None else cached[0]
+
+    def sighted(self, obj: int) -> None:
+        """A detection factor joins object `obj`."""
+        self._sightings[obj] = self._sightings.get(obj, 0) + 1
+
+    def measured(self, keys: Iterable[int]) -> None:
+        """New factors on `keys` were solved: read them again, settled objects aside."""
+        for key in keys:
+            if self._sightings.get(key, 0) <= SETTLED:
+                self._read.pop(key, None)
+
+    def drop(self, key: int) -> None:
+        """`key` left the live graph: its covariance is read elsewhere from now on."""
+        self._read.pop(key, None)
+
+    def forget(self, key: int) -> None:
+        """Node `key` is gone."""
+        self._read.pop(key, None)
+        self._sightings.pop(key, None)
+
+    def clear(self) -> None:
+        """The solution changed at once (a refine, a rebuild): every covariance is stale."""
+        self._read.clear()

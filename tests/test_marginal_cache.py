@@ -1,0 +1,63 @@
+"""Marginal covariances kept for association (geometry/marginal_cache.py): read again
+after their reuse, or after a new factor, unless the object is settled."""
+
+from __future__ import annotations
+
+import pickle
+
+import numpy as np
+
+from agrislam.geometry.marginal_cache import SETTLED, MarginalCache
+
+
+class Reads:
+    """A stand-in for iSAM2's marginalCovariance that counts its calls."""
+
+    def __init__(self) -> None:
+        self.count = 0
+
+    def __call__(self, key: int) -> np.ndarray:
+        self.count += 1
+        return np.eye(2) * self.count
+
+
+def test_a_covariance_serves_its_reuse_steps_then_is_read_again():
+    cache, read = MarginalCache(), Reads()
+    first = cache.get(7, 0, 3, read)
+    assert cache.get(7, 2, 3, read) is first and read.count == 1 and cache.read_at(7) == 0
+    assert cache.get(7, 3, 3, read)[0, 0] == 2.0 and cache.read_at(7) == 3
+
+
+def test_a_new_factor_calls_for_a_fresh_read_until_the_object_is_settled():
+    cache, read = MarginalCache(), Reads()
+    for sighting in range(SETTLED + 2):
+        cache.get(7, 0, 10, read)
+        cache.sighted(7)
+        cache.measured([7, 99])  # 99: a pose, never sighted: always read again
+        fresh = sighting < SETTLED
+        assert (cache.read_at(7) is None) == fresh, sighting
+    assert read.count == SETTLED + 1  # the settled object's read served on
+    cache.get(99, 0, 10, read)
+    cache.measured([99])
+    assert cache.read_at(99) is None
+
+
+def test_a_dropped_node_keeps_its_sightings_a_forgotten_one_does_not():
+    cache, read = MarginalCache(), Reads()
+    for _ in range(SETTLED + 1):
+        cache.sighted(7)
+    cache.get(7, 0, 10, read)
+    cache.drop(7)  # folded out of the live graph
+    assert cache.held() == set()
+    cache.get(7, 1, 10, read)
+    cache.measured([7])
+    assert cache.held() == {7}
+    back = pickle.loads(pickle.dumps(cache))  # a checkpoint: sightings kept, reads not
+    assert back.held() == set()
+    back.get(7, 2, 10, read)
+    back.measured([7])
+    assert back.held() == {7}
+    cache.forget(7)
+    cache.get(7, 2, 10, read)
+    cache.measured([7])
+    assert cache.held() == set()
