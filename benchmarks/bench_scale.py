@@ -10,10 +10,9 @@ is the survey's own (its time stamps) and its frames at 1 frame per second. The 
 size runs again after the largest: this machine's speed drifts by 20-30 % over the half
 hour the largest takes (the same 400-plant survey: 4.3 to 5.7 ms median step within an
 hour), so the step ratios are against both of its runs' steps together, and both rows are
-printed to show the drift. Accuracy is
-the simulator's truth: the trajectory's RMS against dead reckoning's (the default survey
-has no GNSS, so a large field bends along its rows: rigid alignment cannot take that out)
-and the association's purity.
+printed to show the drift. Accuracy is the simulator's truth: the trajectory's RMS against
+dead reckoning's (the default survey has no GNSS, so a large field bends along its rows:
+rigid alignment cannot take that out) and the association's purity.
 
     python benchmarks/bench_scale.py [--sizes 400 10000] [--huge] [--seed 2]
                                      [--baseline-src ../other-checkout/src]
@@ -172,9 +171,11 @@ def report(name: str, src: Path, sizes: list[int], seed: int, changes: dict[str,
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--sizes", type=int, nargs="+", default=[400, 10_000])
-    parser.add_argument("--huge", action="store_true", help="also 100,000 plants (hours)")
+    parser.add_argument(
+        "--huge", action="store_true", help="also 100,000 plants (about 40 minutes here)"
+    )
     parser.add_argument("--seed", type=int, default=2)
     parser.add_argument("--baseline-src", type=Path, help="another checkout's src folder")
     parser.add_argument(
