@@ -1,10 +1,13 @@
 """The world model on hand-made surveys: association, new objects, several robots, merge,
 prune, pure geometry, and bad input kept out without losing the frame."""
 
+import itertools
+
 import numpy as np
 import pytest
 
 from agrislam.config import AgrislamConfig
+from agrislam.maintenance import AfterFold
 from agrislam.records import (
     Detection,
     Detections,
@@ -14,6 +17,8 @@ from agrislam.records import (
     Odometry,
     RobotStart,
 )
+from agrislam.sources import open_source
+from agrislam.sources.simulated import simulation_uri
 from agrislam.world import WorldModel
 
 PLANTS = np.array([[1.0, 0.0], [1.5, 0.0], [2.0, 0.0], [1.0, 1.0], [1.5, 1.0], [2.0, 1.0]])
@@ -294,3 +299,43 @@ def test_a_field_prior_keeps_the_papers_defaults_and_the_config_wins():
     cfg = chosen.association
     assert cfg.innovation_gate and cfg.gate_chi2 == 4.0 and cfg.d_inter == 0.1
     assert chosen.rows is not None
+
+
+def test_after_fold_holds_the_touched_objects_for_the_next_step():
+    after = AfterFold()
+    assert after.ready(np.array([3, 1]), folded=True).tolist() == []
+    assert after.ready(np.array([2, 3]), folded=False).tolist() == [1, 2, 3]
+    assert after.ready(np.array([4]), folded=False).tolist() == [4]
+
+
+def test_a_folding_step_leaves_the_rows_and_merges_of_its_objects_to_the_next_step():
+    """A fold retires its window's objects; a row constraint or a merge on one computes its
+    deferred covariance (issue 14): not in the step that folded, but the next one."""
+    world = WorldModel(AgrislamConfig.model_validate({"slam": {"window": 20}}))
+    settled_in, folds, step = [], [], [0]
+    retired = world.backend._retired_objects
+    settle, update = retired._settle_jobs, world.backend.update
+
+    def spy_settle(jobs):
+        if jobs:
+            settled_in.append((step[0], bool(folds) and folds[-1] == step[0]))
+        return settle(jobs)
+
+    def spy_update():
+        folded = update()
+        assert folded == (world.backend._window_start == world.backend._step)
+        if folded:
+            folds.append(step[0])
+        return folded
+
+    retired._settle_jobs, world.backend.update = spy_settle, spy_update
+    source = open_source(simulation_uri(plants=400, seed=2), world.config)
+    rows_made = []
+    for record in itertools.islice(source.records(), 3000):
+        if world.process(record) is not None:
+            step[0] += 1
+            rows_made.append(int((world.backend.rows_of(world.active_ids()) >= 0).sum()))
+    assert len(folds) >= 5
+    assert not [s for s, after_fold in settled_in if after_fold]  # none once a step folded
+    assert any(s - 1 in folds for s, _ in settled_in)  # the step after one does settle
+    assert rows_made[-1] > 50  # the plants still join their rows

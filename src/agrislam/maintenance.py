@@ -84,6 +84,22 @@ def merge_pairs(
     return pairs
 
 
+class AfterFold:
+    """Objects whose row and merge work a fold's step leaves to the next step (issue 14):
+    a fold retires the window's objects, and a row constraint or a merge on one of them
+    re-enters it, computing its deferred covariance (10-20 ms) in a step that already
+    folds (25-45 ms at 30,000 plants)."""
+
+    def __init__(self) -> None:
+        self.waiting = np.empty(0, dtype=np.int64)
+
+    def ready(self, touched: np.ndarray, folded: bool) -> np.ndarray:
+        """The objects to work on now: those waiting and `touched`, unless `folded`."""
+        ids = np.union1d(self.waiting, touched).astype(np.int64)
+        self.waiting, ready = (ids, ids[:0]) if folded else (ids[:0], ids)
+        return ready
+
+
 def prune_due(
     objects: ObjectTable, t: float, config: MaintenanceConfig, grace: float | None = None
 ) -> list[int]:

@@ -33,7 +33,7 @@ from agrislam.geometry.gnss import GnssFixes
 from agrislam.geometry.noise import SensorModel
 from agrislam.geometry.odometry import OdometryChain
 from agrislam.geometry.rows import RowTracker
-from agrislam.maintenance import Existence, MaintenanceResult, merge_pairs, prune_due
+from agrislam.maintenance import AfterFold, Existence, MaintenanceResult, merge_pairs, prune_due
 from agrislam.objects import ObjectTable
 from agrislam.prior.backend import PriorBackend
 from agrislam.prior.map import PriorMap
@@ -94,8 +94,8 @@ class WorldModel:
         self.rows = RowTracker(self.config.rows) if self.config.rows.enabled else None
         self.index = SpatialIndex(self.association.index_margin, self.association.index_sweep_steps)
         self.objects.on_retire(self.index.forget)
-        self._steps_since_rebuild = 0
-        self._index_refines = 0
+        self._steps_since_rebuild = self._index_refines = 0
+        self._after_fold = AfterFold()
         self.depth_bias = DepthBiasEstimator(self.config.sensor.depth_bias)
         self.existence = Existence(self.config.maintenance)
         self.anchor = None
@@ -273,18 +273,19 @@ class WorldModel:
             for det, obj, xy, cov, f in zip(*factors, strict=True):
                 measurement = self.sensor.measurement(det, xy, cov, sigma_scale, float(f))
                 self.backend.add_observation(robot, obj, measurement)
-            self.backend.update()
+            folded = self.backend.update()
         with timer("index"):
             self._refresh_index(seen)
         with timer("depth_bias"):
             self._calibrate_depth(robot, placed, object_ids)
         with timer("rows"):
+            touched = self.objects.active(self._after_fold.ready(seen, folded))
             if self.rows is not None:
                 # a tentative object joins no row: clutter would bend the rows
                 confirmed = np.where(self.objects.tentative, 0, self.objects.n_frames)
-                self.rows.after_step(self.backend, seen, len(detections), confirmed)
+                self.rows.after_step(self.backend, touched, len(detections), confirmed)
         with timer("maintain"):
-            result = self._maintain(seen, t)
+            result = self._maintain(touched, t)
             result.pruned += self._prune(self.objects.active(dropped).tolist())
         report = StepReport(t, robot, self.resolve(object_ids), new_ids, result, {})
         report.seconds = timer.close_step()
@@ -444,7 +445,7 @@ class WorldModel:
             if not chain.started:
                 self.issues[f"robot {name!r} is in the meta but has no records"] += 1
         t = float(self.objects.last_update.max(initial=0.0))
-        result = self._maintain(np.empty(0, dtype=int), t, grace=0.0)
+        result = self._maintain(self._after_fold.ready(np.empty(0), False), t, grace=0.0)
         ids = self.objects.active(np.arange(self._first_own, len(self.objects)))  # not saved
         poses = [self.backend.trajectory(r)[1] for r, c in self.robots.items() if c.started]
         absent = self.existence.absent(ids, self.backend.object_positions, self.objects, poses)

@@ -123,13 +123,13 @@ class BatchBackend(BackendBase):
         return value_array(self._values, key)
 
     # ------------------------------------------------------------------ solving
-    def update(self) -> None:
-        """Solve the whole graph, warm-started from the last solution."""
-        if not self._dirty:
-            return
-        self._values = solve(self._factors, self._values, self.slam)
-        self._changed()
-        self._dirty = False
+    def update(self) -> bool:
+        """Solve the whole graph, warm-started from the last solution (no window to fold)."""
+        if self._dirty:
+            self._values = solve(self._factors, self._values, self.slam)
+            self._changed()
+            self._dirty = False
+        return False
 
     def refine(self) -> None:
         self.update()

@@ -221,8 +221,8 @@ class IncrementalBackend(BackendBase):
         raise KeyError(f"node {gtsam.DefaultKeyFormatter(key)} is not in the graph")
 
     # ------------------------------------------------------------------ solving
-    def update(self) -> None:
-        """One iSAM2 step with this step's factors; every `window` steps, a keyframe."""
+    def update(self) -> bool:
+        """One iSAM2 step with this step's factors; every `window` steps, a keyframe (True)."""
         self._solve_pending()
         self._step += 1
         since = self._step - self._window_start
@@ -230,12 +230,11 @@ class IncrementalBackend(BackendBase):
             self._retired_objects.pace()  # a fold's deferred covariances, a part a step
             if since == self.window // 2 and self._slots_piled_up():  # half way between folds
                 self._rebuild()
-        else:
-            self._fold()
-            if self.slam.refine_turn_deg and self._turned() > math.radians(
-                self.slam.refine_turn_deg
-            ):
-                self.refine(self.slam.turn_refine_max_factors)
+            return False
+        self._fold()
+        if self.slam.refine_turn_deg and self._turned() > math.radians(self.slam.refine_turn_deg):
+            self.refine(self.slam.turn_refine_max_factors)
+        return True
 
     def _turned(self) -> float:
         """Largest heading change of a keyframe since history was folded onto it: the
