@@ -21,6 +21,7 @@ from agrislam.geometry.backend import (
     make_backend,
 )
 from agrislam.geometry.batch import BatchBackend
+from agrislam.geometry.conditioning import FREE_SIGMA
 from agrislam.geometry.incremental import IncrementalBackend
 from agrislam.geometry.se2 import rotation
 
@@ -610,3 +611,26 @@ def test_a_marginal_read_serves_each_robot_covariance_reuse_steps_steps(robots):
         steps += 1
         np.testing.assert_allclose(g.object_covariances(np.array([0])), first, rtol=0.5)
     assert steps == 2 * robots
+
+
+def test_a_fold_whose_objects_cannot_be_given_their_keyframe_gives_them_a_weak_covariance(
+    monkeypatch,
+):
+    """Where a fold's deferred job cannot condition its objects on their keyframe (an object
+    outside the keyframe's part of the graph, after a merge of objects far apart: Victoria
+    Park, issue 11), they get FREE_SIGMA and an issue; the run goes on."""
+    import agrislam.geometry.incremental as incremental
+
+    def outside(graph, point, keys):
+        raise RuntimeError(f"objects {gtsam.DefaultKeyFormatter(keys[0])} are not in the graph")
+
+    monkeypatch.setattr(incremental, "marginal_covariances", outside)
+    g = make_backend(SlamConfig(window=5, refine_turn_deg=0.0), RowsConfig())
+    line_survey(g)
+    weak = g.issues["object given a weak covariance at a keyframe fold"]
+    assert weak >= 20
+    retired = g._retired_objects
+    rows = np.arange(len(retired))
+    np.testing.assert_allclose(
+        retired.covariances(rows), np.broadcast_to(np.eye(2) * FREE_SIGMA**2, (len(rows), 2, 2))
+    )

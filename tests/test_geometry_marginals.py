@@ -7,7 +7,7 @@ import gtsam
 import numpy as np
 import pytest
 
-from agrislam.geometry.conditioning import marginal_covariances
+from agrislam.geometry.conditioning import indeterminate_key, marginal_covariances
 from agrislam.geometry.graph import object_key, pose_key
 
 rng = np.random.default_rng(4)
@@ -69,3 +69,14 @@ def test_an_indeterminate_object_is_named_by_gtsam():
     graph.push_back(gtsam.PriorFactorPoint2(object_key(99), np.array([1.0, 1.0]), along_x))
     with pytest.raises(RuntimeError, match=r"Indeterminate|near variable"):
         marginal_covariances(graph, values, [object_key(1), object_key(99)])
+
+
+def test_an_object_outside_the_graph_is_a_runtime_error_naming_it():
+    """A fold's deferred job asks for an object that a merge of far-apart objects left out
+    of its keyframe's part (Victoria Park, issue 11): the error is one the fold turns into a
+    weak covariance and an issue, not a KeyError that ends the run."""
+    graph, values = survey()
+    values.insert(object_key(99), np.array([1.0, 1.0]))  # a value, but no factor here
+    with pytest.raises(RuntimeError, match="l99 are not in the graph") as err:
+        marginal_covariances(graph, values, [object_key(1), object_key(99)])
+    assert indeterminate_key(err.value) is None  # so `isolating` does not try to isolate it

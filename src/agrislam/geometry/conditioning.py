@@ -67,6 +67,9 @@ def marginal_covariances(
     order = sorted(graph.keyVector())  # the matrix's columns: nodes in key order
     dims = np.array([3 if key_kind(key) == POSE else 2 for key in order])
     start = dict(zip(order, np.cumsum(dims) - dims, strict=True))
+    if outside := [gtsam.DefaultKeyFormatter(key) for key in keys if key not in start]:
+        # a merge of objects far apart can leave one outside its keyframe's part (issue 11)
+        raise RuntimeError(f"objects {', '.join(outside)} are not in the graph given")
     information = information_matrix(graph, point, int(dims.sum()))
     objects = np.concatenate([start[key] + np.arange(2) for key in keys])
     rest = np.setdiff1d(np.arange(int(dims.sum())), objects)
