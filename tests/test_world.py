@@ -53,7 +53,8 @@ def drive(world: WorldModel, robot: str, poses: np.ndarray, t0: float = 0.0, pla
             d = pose[:2] - poses[k - 1][:2]
             delta = np.array([c * d[0] + s * d[1], -s * d[0] + c * d[1], pose[2] - poses[k - 1][2]])
             world.process(Odometry(t, robot, delta=delta, cov=np.diag([1e-4, 1e-4, 1e-5])))
-        reports.append(world.process(Detections(t, robot, seen_from(pose, plants))))
+        frame = seen_from(pose, plants, COLOURS[: len(plants)])
+        reports.append(world.process(Detections(t, robot, frame)))
     return reports
 
 
@@ -108,7 +109,9 @@ def test_two_robots_feed_one_map(whole_innovation):
 
 
 def test_the_same_plant_twice_in_one_frame_is_merged():
+    # the field prior says no two plants stand nearer than 0.4 m (so d_inter is 0.2)
     world = WorldModel(config())
+    world.process(Meta(field=FieldPrior(1.0, 0.4)))
     drive(world, "r1", straight(0.0, 0.2, 0.5, 2))
     frame = seen_from(np.array([0.3, 0.5, 0.0]), PLANTS)
     twin = Detection(xy=frame[0].xy + np.array([0.05, 0.02]), cov=COV)
@@ -118,6 +121,20 @@ def test_the_same_plant_twice_in_one_frame_is_merged():
     assert len(world.active_ids()) == len(PLANTS)
     # the detection's object id resolves to the surviving object
     assert report.object_ids[-1] == report.object_ids[0]
+
+
+def test_without_a_field_prior_two_landmarks_nearer_than_d_inter_seen_together_stay_two():
+    """Issue 11: landmarks a range sigma apart are detected together in every frame; the
+    merge of sec. 2.6.3 at d_inter (three sharpest sigmas, 0.13 m here) took them as one."""
+    pair = np.array([[1.5, 0.5], [1.5, 0.6]])
+    world = WorldModel(config())
+    world.process(Meta(robots={"r1": RobotStart(np.array([0.0, 0.5, 0.0]), np.full(3, 1e-3))}))
+    drive(world, "r1", straight(0.0, 0.8, 0.5, 6), plants=pair)
+    assert world.association.d_inter > 0.1
+    snap = world.snapshot()
+    assert len(snap.objects) == 2 and np.all(snap.objects.n_meas == 6)
+    d = np.linalg.norm(snap.objects.xy[:, None] - pair[None], axis=2)
+    assert d.min(axis=0).max() < 0.03
 
 
 def test_a_one_off_uncertain_detection_is_pruned_after_its_grace_period():

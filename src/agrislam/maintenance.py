@@ -55,33 +55,74 @@ class MaintenanceResult:
     pruned: list[int] = field(default_factory=list)
 
 
-def merge_pairs(
-    touched: np.ndarray,
-    touched_xy: np.ndarray,
-    index: SpatialIndex,
-    positions: Callable[[np.ndarray], np.ndarray],  # ids -> (k, 2) current estimates
-    n_meas: np.ndarray,
-    d_inter: float,
-) -> list[tuple[int, int]]:
-    """Pairs (keep, drop) of distinct objects closer than d_inter, each object in at most
-    one pair; the better-observed object (then the older) is kept."""
-    pairs: list[tuple[int, int]] = []
-    used: set[int] = set()
-    for obj, xy in zip(touched.tolist(), touched_xy, strict=True):
-        if obj in used:
-            continue
-        near = index.query(xy[None, :], d_inter)
-        near = near[(near != obj) & ~np.isin(near, list(used))]
-        if len(near) == 0:
-            continue
-        d = np.linalg.norm(positions(near) - xy, axis=1)
-        if d.min() >= d_inter:
-            continue
-        other = int(near[int(np.argmin(d))])
-        keep, drop = sorted((obj, other), key=lambda i: (-n_meas[i], i))
-        pairs.append((keep, drop))
-        used.update((keep, drop))
-    return pairs
+# two near objects seen in one frame in more than this share of the frames that saw the
+# less-seen one are two (a split object's parts are seen together only when an outlier or a
+# neighbour's detection goes to one of them)
+TOGETHER_SHARE = 0.1
+
+
+class Merger:
+    """Finds the objects to merge (sec. 2.6.3): closer than d_inter, and not often detected
+    in the same frame (issue 11, ambiguous neighbours): two landmarks a range sigma apart
+    are detected together in nearly every frame that sees them, one object split in two
+    hardly ever. A field prior's plant spacing rules out two plants that near: with one, the
+    test is off (`spare_together`)."""
+
+    def __init__(self) -> None:
+        self._together: dict[int, int] = {}  # a pair's key (_pair_keys) -> frames together
+        self.spare_together = False
+
+    def saw(self, object_ids: np.ndarray, xy: np.ndarray, radius: float) -> None:
+        """A frame's detections: their objects and map positions; each pair of objects
+        whose detections lie within `radius` of each other counts one frame together."""
+        if len(object_ids) < 2 or not self.spare_together:
+            return
+        near = np.linalg.norm(xy[:, None, :] - xy[None, :, :], axis=2) < radius
+        first, second = np.nonzero(np.triu(near, 1))
+        for key in _pair_keys(object_ids[first], object_ids[second]).tolist():
+            self._together[key] = self._together.get(key, 0) + 1
+
+    def together(self, obj: int, others: np.ndarray) -> np.ndarray:
+        """(k,) the frames `obj` was detected in together with each of `others`."""
+        keys = _pair_keys(np.full(len(others), obj), np.asarray(others)).tolist()
+        return np.array([self._together.get(k, 0) for k in keys], dtype=np.int64)
+
+    def pairs(
+        self,
+        touched: np.ndarray,
+        index: SpatialIndex,
+        positions: Callable[[np.ndarray], np.ndarray],  # ids -> (k, 2) current estimates
+        objects: ObjectTable,
+        d_inter: float,
+    ) -> list[tuple[int, int]]:
+        """Pairs (keep, drop) of distinct objects to merge, each object in at most one
+        pair; the better-observed object (then the older) is kept."""
+        pairs: list[tuple[int, int]] = []
+        used: set[int] = set()
+        n_meas, n_frames = objects.n_meas, objects.n_frames
+        for obj, xy in zip(touched.tolist(), positions(touched), strict=True):
+            if obj in used:
+                continue
+            near = index.query(xy[None, :], d_inter)
+            near = near[(near != obj) & ~np.isin(near, list(used))]
+            seen_apart = np.minimum(n_frames[obj], n_frames[near])
+            near = near[self.together(obj, near) <= TOGETHER_SHARE * seen_apart]
+            if len(near) == 0:
+                continue
+            d = np.linalg.norm(positions(near) - xy, axis=1)
+            if d.min() >= d_inter:
+                continue
+            other = int(near[int(np.argmin(d))])
+            keep, drop = sorted((obj, other), key=lambda i: (-n_meas[i], i))
+            pairs.append((keep, drop))
+            used.update((keep, drop))
+        return pairs
+
+
+def _pair_keys(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """One int64 per unordered pair of object ids."""
+    a, b = np.asarray(a, dtype=np.int64), np.asarray(b, dtype=np.int64)
+    return (np.minimum(a, b) << 32) | np.maximum(a, b)
 
 
 class AfterFold:

@@ -33,7 +33,7 @@ from agrislam.geometry.gnss import GnssFixes
 from agrislam.geometry.noise import SensorModel
 from agrislam.geometry.odometry import OdometryChain
 from agrislam.geometry.rows import RowTracker
-from agrislam.maintenance import AfterFold, Existence, MaintenanceResult, merge_pairs, prune_due
+from agrislam.maintenance import AfterFold, Existence, MaintenanceResult, Merger, prune_due
 from agrislam.objects import ObjectTable
 from agrislam.prior.backend import PriorBackend
 from agrislam.prior.map import PriorMap
@@ -95,7 +95,7 @@ class WorldModel:
         self.index = SpatialIndex(self.association.index_margin, self.association.index_sweep_steps)
         self.objects.on_retire(self.index.forget)
         self._steps_since_rebuild = self._index_refines = 0
-        self._after_fold = AfterFold()
+        self._after_fold, self.merger = AfterFold(), Merger()
         self.depth_bias = DepthBiasEstimator(self.config.sensor.depth_bias)
         self.existence = Existence(self.config.maintenance)
         self.anchor = None
@@ -207,6 +207,7 @@ class WorldModel:
         update = {k: v for k, v in generic.items() if k not in chosen}
         self.association = self.association.model_copy(update=update)
         self._rows_off_by_default()
+        self.merger.spare_together = True  # no plant spacing says how near two can be
         # landmarks seen now and then from far: no confirmation (it cost VP 41 of 114 trees)
         if "existence" not in self.config.maintenance.model_fields_set:
             self.existence = Existence(
@@ -257,6 +258,7 @@ class WorldModel:
             object_ids = self._associate(robot, placed, t)
             new_ids = self._create_objects(object_ids, placed, t)
             seen = np.unique(object_ids)
+            self.merger.saw(object_ids, placed.xy, 2.0 * self.association.d_inter)
         with timer("noise"):
             self._sighted(robot, placed, object_ids, new_ids)
         with timer("beliefs"):
@@ -455,18 +457,12 @@ class WorldModel:
     def _maintain(
         self, touched: np.ndarray, t: float, grace: float | None = None
     ) -> MaintenanceResult:
-        """Merge touched objects closer than d_inter; prune young uncertain ones."""
+        """Merge touched objects closer than d_inter (maintenance.Merger); prune young uncertain ones."""
         cfg, result = self.config.maintenance, MaintenanceResult()
         touched = self.objects.active(touched)
         if cfg.merge and len(touched):
-            pairs = merge_pairs(
-                touched,
-                self.backend.object_positions(touched),
-                self.index,
-                self.backend.object_positions,
-                self.objects.n_meas,
-                self.association.d_inter,
-            )
+            positions, d_inter = self.backend.object_positions, self.association.d_inter
+            pairs = self.merger.pairs(touched, self.index, positions, self.objects, d_inter)
             result.merged = self._merge(pairs)
         if cfg.prune:
             result.pruned = self._prune(prune_due(self.objects, t, cfg, grace))
