@@ -457,7 +457,7 @@ class WorldModel:
     def _maintain(
         self, touched: np.ndarray, t: float, grace: float | None = None
     ) -> MaintenanceResult:
-        """Merge touched objects closer than d_inter (maintenance.Merger); prune young uncertain ones."""
+        """Merge touched objects (maintenance.Merger); prune young uncertain ones."""
         cfg, result = self.config.maintenance, MaintenanceResult()
         touched = self.objects.active(touched)
         if cfg.merge and len(touched):
