@@ -68,11 +68,16 @@ from agrislam.geometry.isam_state import (
 )
 from agrislam.geometry.key_table import KeyTable
 from agrislam.geometry.marginal_cache import MarginalCache
+from agrislam.geometry.refold import refold
 from agrislam.geometry.retired import Anchored, FrozenKeyframes, RetiredObjects, RetiredPoses
 from agrislam.geometry.se2 import between, compose, pose_uncertainty_at, rotation, to_robot_frame
 
 FOLD_ITERATIONS = 2  # Gauss-Newton iterations on the window before it is folded away
 SLOTS_SLACK, SLOTS_FLOOR = 8, 8000  # iSAM2 rebuilt when its slots pass slack x live + floor
+# a refine during the survey whose history would fold into a dense factor over more keys
+# relinearises the keyframe graph instead: iSAM2 re-eliminated that factor at every step
+# after (issue 11: five robots sharing landmarks, 367 keyframes, 600 ms steps)
+REFOLD_MAX_KEYS = 100
 
 
 class IncrementalBackend(BackendBase):
@@ -233,7 +238,7 @@ class IncrementalBackend(BackendBase):
             return False
         self._fold()
         if self.slam.refine_turn_deg and self._turned() > math.radians(self.slam.refine_turn_deg):
-            self.refine(self.slam.turn_refine_max_factors)
+            self.refine(self.slam.turn_refine_max_factors, REFOLD_MAX_KEYS)
         return True
 
     def _turned(self) -> float:
@@ -425,11 +430,12 @@ class IncrementalBackend(BackendBase):
         rot = rotation(value_array(point, keyframe)[2])
         return [rot.T @ cov @ rot for cov in covs]
 
-    def refine(self, max_factors: int | None = None) -> None:
+    def refine(self, max_factors: int | None = None, max_keys: int = 0) -> None:
         """Solve the whole recorded graph (batch, warm-started from the current estimates)
         and carry on from that solution: with keyframes, the whole history is folded onto
         them again, exactly at the solution; with more than `max_factors` factors
-        (`slam.refine_max_factors` by default), only the keyframe graph is relinearised."""
+        (`slam.refine_max_factors` by default), or a history that would fold into a factor
+        over more than `max_keys` (if given), only the keyframe graph is relinearised."""
         self._solve_pending()
         if self.window:
             self._fold()  # the current window retires too: only keyframes and rows live
@@ -448,8 +454,9 @@ class IncrementalBackend(BackendBase):
             fresh = isam2(self.slam)
             if not self.window:
                 fresh.update(graph, solution)
-            else:
-                self._refold(solution, fresh, graph)
+            elif not self._refold(solution, fresh, graph, max_keys):
+                self._refine_folded()
+                return
         except RuntimeError as err:  # degenerate: carry on from the incremental estimate
             self.issues[f"refine skipped: {str(err).strip().splitlines()[0]}"] += 1
             return
@@ -474,36 +481,27 @@ class IncrementalBackend(BackendBase):
         self.refines += 1
 
     def _refold(
-        self, solution: gtsam.Values, fresh: gtsam.ISAM2, graph: gtsam.NonlinearFactorGraph
-    ) -> None:
-        """Live graph (in `fresh`) = keyframes and rows with the whole history marginalised
-        onto them at `solution`, plus the record's factors between them (kept nonlinear);
-        `graph` holds the record's factors, built once, in the record's order."""
-        history, live = gtsam.NonlinearFactorGraph(), gtsam.NonlinearFactorGraph()
-        fids: list[int | None] = []
-        gone: set[int] = set()
-        for n, (fid, factor) in enumerate(self.graph.factors.items()):
-            if self._permanent.issuperset(factor.keys):
-                fids.append(fid)
-                live.push_back(graph.at(n))
-            else:
-                history.push_back(graph.at(n))
-                gone.update(k for k in factor.keys if k not in self._permanent)
-        kept, values = gtsam.Values(), gtsam.Values()
+        self,
+        solution: gtsam.Values,
+        fresh: gtsam.ISAM2,
+        graph: gtsam.NonlinearFactorGraph,
+        max_keys: int = 0,
+    ) -> bool:
+        """Live graph (in `fresh`) = keyframes and rows with the whole history folded onto
+        them at `solution` (refold.py); `graph` holds the record's factors, built once, in
+        its order. False (nothing done) if a folded factor would have over `max_keys` keys."""
+        out = refold(self.graph, graph, solution, self._permanent)
+        if max_keys and out.widest > max_keys:
+            return False
+        values = gtsam.Values()
         for key in self._live:
             insert_value(values, key, value_array(solution, key))
-        for key in history.keyVector():
-            if key not in gone:
-                insert_value(kept, key, value_array(solution, key))
-        _, remaining = history.linearize(solution).eliminatePartialMultifrontal(sorted(gone))
-        folded = gtsam.LinearContainerFactor.ConvertLinearGraph(remaining, kept)
-        live.push_back(folded)
-        fresh.update(live, values)  # may raise: nothing of this back end has changed yet
-        fids.extend([None] * folded.size())
-        self._slots.reset(Entry(tuple(live.at(n).keys()), fid) for n, fid in enumerate(fids))
+        fresh.update(out.graph, values)  # may raise: nothing of this back end has changed yet
+        self._slots.reset(Entry(tuple(out.graph.at(n).keys()), f) for n, f in enumerate(out.fids))
         self._folded_heading = {
-            k: solution.atPose2(k).theta() for k in folded.keyVector() if key_kind(k) == POSE
+            k: solution.atPose2(k).theta() for k in out.folded if key_kind(k) == POSE
         }
+        return True
 
     # ---------------------------------------------------------------- queries
     def add_odometry(self, robot: str, t: float, delta: np.ndarray, cov: np.ndarray) -> None:

@@ -1,0 +1,61 @@
+"""A refine folds the whole history onto the keyframes (geometry/refold.py): with several
+robots sharing landmarks, into one dense factor over every keyframe, which iSAM2 would
+re-eliminate at every step after (issue 11). A refine during the survey refuses such a
+fold and relinearises the keyframe graph instead."""
+
+import numpy as np
+
+from agrislam.config import RowsConfig, SlamConfig
+from agrislam.geometry.backend import RelativePosition, detection_covariance, make_backend
+from agrislam.geometry.se2 import compose, rotation
+
+LANDMARKS = np.array([[2.0, 0.0], [0.0, 2.0], [-2.0, 0.0], [0.0, -2.0]])
+ROBOTS = 3
+STEP = np.array([0.2, 0.0, 0.2])  # each robot circles inside the landmarks
+
+
+def survey(steps: int = 60):
+    """Three robots circling inside four landmarks, seeing them all at every step."""
+    g = make_backend(SlamConfig(window=5, refine_turn_deg=0.0), RowsConfig())
+    poses = {}
+    for n in range(ROBOTS):
+        angle = 2 * np.pi * n / ROBOTS
+        poses[f"r{n}"] = np.array([np.cos(angle), np.sin(angle), angle + np.pi / 2])
+        g.add_robot(f"r{n}", poses[f"r{n}"], np.array([1e-3, 1e-3, 1e-4]))
+    for obj, xy in enumerate(LANDMARKS):
+        g.add_object(obj, xy)
+    for k in range(steps):
+        name = f"r{k % ROBOTS}"
+        if k >= ROBOTS:
+            poses[name] = compose(poses[name], STEP)
+            g.add_odometry(name, float(k), STEP, np.diag([1e-3, 1e-3, 1e-4]))
+        for obj, xy in enumerate(LANDMARKS):
+            rel = rotation(poses[name][2]).T @ (xy - poses[name][:2])
+            g.add_observation(
+                name, obj, RelativePosition(rel, detection_covariance(rel, 0.05, 0.01))
+            )
+        g.update()
+    return g
+
+
+def widest_live_factor(g) -> int:
+    factors = g._isam.getFactorsUnsafe()
+    return max(factors.at(n).size() for n in range(factors.size()) if factors.exists(n))
+
+
+def test_the_history_of_robots_sharing_landmarks_folds_into_one_factor_over_every_keyframe():
+    g = survey()
+    keyframes = sum(len(frames) for frames in g._keyframes.values())
+    g.refine()  # the end of a survey: no step comes after
+    assert widest_live_factor(g) == keyframes > 30
+    np.testing.assert_allclose(g.object_positions(np.arange(4)), LANDMARKS, atol=1e-3)
+
+
+def test_a_refine_during_the_survey_refuses_so_wide_a_fold_and_relinearises_instead():
+    g = survey()
+    refines = g.refines
+    g.refine(max_keys=10)
+    assert widest_live_factor(g) <= 10 and g.refines == refines + 1
+    assert g.whole_refine < g.refines  # not a whole refine: the index need not move all
+    np.testing.assert_allclose(g.object_positions(np.arange(4)), LANDMARKS, atol=1e-3)
+    g.update()  # and the survey goes on
