@@ -47,8 +47,9 @@ from agrislam.world import WorldModel
 # (2: folded poses held between both keyframes of their window, geometry/isam_state.py;
 # 3: retired nodes in geometry/retired.py, frozen keyframes; 4: per-node integers in
 # geometry/key_table.py; 5: the truth as arrays, ground_truth.py; 6: tables grown by
-# growing.Doubling; 7: geometry/marginal_cache.py, the factor store's rows in use alone)
-FORMAT = b"agrislam-checkpoint 7"
+# growing.Doubling; 7: geometry/marginal_cache.py, the factor store's rows in use alone;
+# 8: the world's maintenance.Merger)
+FORMAT = b"agrislam-checkpoint 8"
 # the modules a checkpoint's objects may come from
 TRUSTED_MODULES = {"agrislam", "numpy", "collections", "copyreg", "builtins", "pydantic"}
 TRUSTED_MODULES |= {"pydantic_core", "scipy"}
