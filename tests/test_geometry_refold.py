@@ -14,21 +14,23 @@ ROBOTS = 3
 STEP = np.array([0.2, 0.0, 0.2])  # each robot circles inside the landmarks
 
 
-def survey(steps: int = 60):
-    """Three robots circling inside four landmarks, seeing them all at every step."""
-    g = make_backend(SlamConfig(window=5, refine_turn_deg=0.0), RowsConfig())
+def survey(steps: int = 60, robots: int = ROBOTS, refine_turn_deg: float = 0.0, bias=0.0):
+    """Robots circling inside four landmarks, seeing them all at every step; the odometry
+    reports `bias` rad more turn than was driven."""
+    g = make_backend(SlamConfig(window=5, refine_turn_deg=refine_turn_deg), RowsConfig())
     poses = {}
-    for n in range(ROBOTS):
-        angle = 2 * np.pi * n / ROBOTS
+    for n in range(robots):
+        angle = 2 * np.pi * n / robots
         poses[f"r{n}"] = np.array([np.cos(angle), np.sin(angle), angle + np.pi / 2])
         g.add_robot(f"r{n}", poses[f"r{n}"], np.array([1e-3, 1e-3, 1e-4]))
     for obj, xy in enumerate(LANDMARKS):
         g.add_object(obj, xy)
     for k in range(steps):
-        name = f"r{k % ROBOTS}"
-        if k >= ROBOTS:
+        name = f"r{k % robots}"
+        if k >= robots:
             poses[name] = compose(poses[name], STEP)
-            g.add_odometry(name, float(k), STEP, np.diag([1e-3, 1e-3, 1e-4]))
+            reported = STEP + np.array([0.0, 0.0, bias])
+            g.add_odometry(name, float(k), reported, np.diag([1e-3, 1e-3, 1e-4]))
         for obj, xy in enumerate(LANDMARKS):
             rel = rotation(poses[name][2]).T @ (xy - poses[name][:2])
             g.add_observation(
@@ -59,3 +61,15 @@ def test_a_refine_during_the_survey_refuses_so_wide_a_fold_and_relinearises_inst
     assert g.whole_refine < g.refines  # not a whole refine: the index need not move all
     np.testing.assert_allclose(g.object_positions(np.arange(4)), LANDMARKS, atol=1e-3)
     g.update()  # and the survey goes on
+
+
+def test_with_several_robots_a_turn_relinearises_during_the_survey_and_alone_it_refolds():
+    """A keyframe turned by more than refine_turn_deg calls a refine: one robot's history
+    is refolded at the batch solution; several robots' would tie all their keyframes."""
+    for robots, whole in ((1, True), (ROBOTS, False)):
+        g = survey(robots=robots, refine_turn_deg=0.5, bias=0.1)
+        assert g.refines > 0
+        assert (g.whole_refine > 0) == whole
+        if robots > 1:
+            keyframes = sum(len(frames) for frames in g._keyframes.values())
+            assert widest_live_factor(g) < keyframes

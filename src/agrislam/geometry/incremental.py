@@ -74,9 +74,10 @@ from agrislam.geometry.se2 import between, compose, pose_uncertainty_at, rotatio
 
 FOLD_ITERATIONS = 2  # Gauss-Newton iterations on the window before it is folded away
 SLOTS_SLACK, SLOTS_FLOOR = 8, 8000  # iSAM2 rebuilt when its slots pass slack x live + floor
-# a refine during the survey whose history would fold into a dense factor over more keys
-# relinearises the keyframe graph instead: iSAM2 re-eliminated that factor at every step
-# after (issue 11: five robots sharing landmarks, 367 keyframes, 600 ms steps)
+# a refine during the survey whose history would fold into a dense factor over more keys,
+# or with several robots (the fold ties all their keyframes together), relinearises the
+# keyframe graph instead: iSAM2 re-eliminated that factor at every step after (issue 11:
+# five robots sharing landmarks, 367 keyframes, 600 ms steps)
 REFOLD_MAX_KEYS = 100
 
 
@@ -238,7 +239,8 @@ class IncrementalBackend(BackendBase):
             return False
         self._fold()
         if self.slam.refine_turn_deg and self._turned() > math.radians(self.slam.refine_turn_deg):
-            self.refine(self.slam.turn_refine_max_factors, REFOLD_MAX_KEYS)
+            alone = len(self._keyframes) == 1  # else its refold ties every robot's keyframes
+            self.refine(self.slam.turn_refine_max_factors if alone else 0, REFOLD_MAX_KEYS)
         return True
 
     def _turned(self) -> float:
