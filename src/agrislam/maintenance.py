@@ -1,5 +1,6 @@
-"""Map maintenance (sec. 2.6.3): merge objects closer than d_inter, prune objects seen
-only a few times whose interest heuristic stays high.
+"""Map maintenance (sec. 2.6.3): merge objects closer than d_inter (without a field prior,
+only those rarely detected in the same frame: `Merger`), prune objects seen only a few
+times whose interest heuristic stays high.
 
 Both look only around what changed: merging checks the objects touched this step,
 pruning the young objects whose grace period has just run out.
