@@ -106,8 +106,9 @@ class Merger:
                 continue
             near = index.query(xy[None, :], d_inter)
             near = near[(near != obj) & ~np.isin(near, list(used))]
-            seen_apart = np.minimum(n_frames[obj], n_frames[near])
-            near = near[self.together(obj, near) <= TOGETHER_SHARE * seen_apart]
+            if self.spare_together:
+                fewer_frames = np.minimum(n_frames[obj], n_frames[near])
+                near = near[self.together(obj, near) <= TOGETHER_SHARE * fewer_frames]
             if len(near) == 0:
                 continue
             d = np.linalg.norm(positions(near) - xy, axis=1)
