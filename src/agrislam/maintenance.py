@@ -60,6 +60,10 @@ class MaintenanceResult:
 # less-seen one are two (a split object's parts are seen together only when an outlier or a
 # neighbour's detection goes to one of them)
 TOGETHER_SHARE = 0.1
+# frames an object and all its near neighbours would be detected together if each came as
+# often as with it alone, before their never coming all together counts (a Poisson count
+# of 5 is 0 in under 1 % of surveys)
+CROWD_EXPECTED = 5.0
 
 
 class Merger:
@@ -67,26 +71,70 @@ class Merger:
     in the same frame (issue 11, ambiguous neighbours): two landmarks a range sigma apart
     are detected together in nearly every frame that sees them, one object split in two
     hardly ever. A field prior's plant spacing rules out two plants that near: with one, the
-    test is off (`spare_together`)."""
+    test is off (`spare_together`).
+
+    Between two landmarks a third object can live on their detections, each frame's
+    ambiguous one going to it: it is detected with each of the two often, never with both
+    (one object too many for the frames' detections). Such a crowd's least seen object,
+    detected with its neighbours often but never with all at once, is merged too."""
 
     def __init__(self) -> None:
-        self._together: dict[int, int] = {}  # a pair's key (_pair_keys) -> frames together
+        # per object, the sets of other objects detected near it in one frame -> frames
+        self._company: dict[int, dict[frozenset[int], int]] = {}
         self.spare_together = False
 
     def saw(self, object_ids: np.ndarray, xy: np.ndarray, radius: float) -> None:
-        """A frame's detections: their objects and map positions; each pair of objects
-        whose detections lie within `radius` of each other counts one frame together."""
+        """A frame's detections: their objects and map positions; each object counts one
+        frame with the set of objects whose detections lie within `radius` of its own."""
         if len(object_ids) < 2 or not self.spare_together:
             return
         near = np.linalg.norm(xy[:, None, :] - xy[None, :, :], axis=2) < radius
-        first, second = np.nonzero(np.triu(near, 1))
-        for key in _pair_keys(object_ids[first], object_ids[second]).tolist():
-            self._together[key] = self._together.get(key, 0) + 1
+        np.fill_diagonal(near, False)
+        for i in np.flatnonzero(near.any(axis=1)).tolist():
+            company = self._company.setdefault(int(object_ids[i]), {})
+            others = frozenset(object_ids[near[i]].tolist())
+            company[others] = company.get(others, 0) + 1
+
+    def merged(self, keep: int, drop: int) -> None:
+        """`drop` joined `keep`: its frames count as `keep`'s (as its frames do in the
+        object table), and its neighbours' frames with it as frames with `keep`."""
+        moved = self._company.pop(drop, {})
+        for obj in {keep}.union(*moved):
+            company = self._company.get(obj)
+            if company is None:
+                continue
+            renamed: dict[frozenset[int], int] = {}
+            for others, n in [*company.items(), *(moved.items() if obj == keep else ())]:
+                others = others | {keep} if drop in others else others
+                others = others - {drop, obj}
+                if others:
+                    renamed[others] = renamed.get(others, 0) + n
+            self._company[obj] = renamed
 
     def together(self, obj: int, others: np.ndarray) -> np.ndarray:
         """(k,) the frames `obj` was detected in together with each of `others`."""
-        keys = _pair_keys(np.full(len(others), obj), np.asarray(others)).tolist()
-        return np.array([self._together.get(k, 0) for k in keys], dtype=np.int64)
+        company = self._company.get(int(obj), {})
+        return np.array(
+            [sum(n for s, n in company.items() if b in s) for b in np.asarray(others).tolist()],
+            dtype=np.int64,
+        )
+
+    def surplus(self, crowd: np.ndarray, n_frames: np.ndarray) -> int | None:
+        """The object one too many in `crowd` (three or more near objects), if any: the
+        least seen, when in most of its frames it was detected with others of the crowd,
+        each often enough that, were they independent, all would have come with it in
+        CROWD_EXPECTED frames, and they came in at most TOGETHER_SHARE of that."""
+        if len(crowd) < 3:
+            return None
+        obj = int(crowd[np.argmin(n_frames[crowd])])
+        others, n = crowd[crowd != obj], int(n_frames[obj])
+        everyone = frozenset(others.tolist())
+        company = self._company.get(obj, {})
+        with_some = sum(k for s, k in company.items() if s & everyone)
+        all_together = sum(k for s, k in company.items() if everyone <= s)
+        expected = n * float(np.prod(self.together(obj, others) / max(n, 1)))
+        crowded = with_some >= 0.5 * n and expected >= CROWD_EXPECTED
+        return obj if crowded and all_together <= TOGETHER_SHARE * expected else None
 
     def pairs(
         self,
@@ -106,7 +154,12 @@ class Merger:
                 continue
             near = index.query(xy[None, :], d_inter)
             near = near[(near != obj) & ~np.isin(near, list(used))]
-            if self.spare_together:
+            crowd = np.append(near, obj)
+            ghost = self.surplus(crowd, n_frames) if self.spare_together else None
+            if ghost is not None:
+                obj, near = ghost, crowd[crowd != ghost]
+                xy = positions(np.array([ghost]))[0]
+            elif self.spare_together:
                 fewer_frames = np.minimum(n_frames[obj], n_frames[near])
                 near = near[self.together(obj, near) <= TOGETHER_SHARE * fewer_frames]
             if len(near) == 0:
@@ -119,12 +172,6 @@ class Merger:
             pairs.append((keep, drop))
             used.update((keep, drop))
         return pairs
-
-
-def _pair_keys(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """One int64 per unordered pair of object ids."""
-    a, b = np.asarray(a, dtype=np.int64), np.asarray(b, dtype=np.int64)
-    return (np.minimum(a, b) << 32) | np.maximum(a, b)
 
 
 class AfterFold:

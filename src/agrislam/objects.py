@@ -135,8 +135,9 @@ class ObjectTable:
     def absorb(self, keep: int, drop: int) -> None:
         """`keep` now stands for `drop` too: it was last seen when `drop` was, if later
         by the same robot's chain (or seen by no robot of its own). It is tentative while
-        both were, in view as often as the more often viewed."""
+        both were, in view as often as the more often viewed, detected in the frames of both."""
         self._tentative[keep] &= self._tentative[drop]
+        self._n_frames[keep] += self._n_frames[drop]
         self._views[keep] = max(self._views[keep], self._views[drop])
         robot = self._seen_by[drop]
         if robot == NO_ROBOT:

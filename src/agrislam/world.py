@@ -482,6 +482,7 @@ class WorldModel:
             self.beliefs.fuse(keep, drop)
             self.backend.merge_objects(keep, drop)
             self.objects.absorb(keep, drop)
+            self.merger.merged(keep, drop)
             self.objects.retire(np.array([drop]), STATUS_MERGED, into=keep)
         return pairs
 
