@@ -27,6 +27,7 @@ CORE = [
     "geometry",
     "spatial_index",
     "association",
+    "rejoin",
     "objects",
     "maintenance",
     "prior",

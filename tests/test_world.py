@@ -6,6 +6,7 @@ import itertools
 import numpy as np
 import pytest
 
+from agrislam.association import D_INTER_SAMPLE
 from agrislam.config import AgrislamConfig
 from agrislam.maintenance import AfterFold
 from agrislam.records import (
@@ -298,6 +299,23 @@ def test_a_survey_without_a_field_prior_is_mapped_as_point_landmarks():
     assert world.rows is None
     assert not world.existence.enabled  # no confirmation of young objects
     assert world.config.association.d_inter == 0.2  # the config itself is not written
+
+
+def test_without_a_field_prior_d_inter_follows_the_first_detections_not_the_first_frame():
+    """A first frame seen from near has sharp detections; d_inter is three times the
+    median sharpest sigma of the first D_INTER_SAMPLE detections, then stays."""
+    world = WorldModel(AgrislamConfig())
+    sharp, blurred = np.diag([0.01, 0.0001]), np.diag([0.04, 0.0016])  # sigmas 0.01, 0.04
+
+    def frame(t: float, cov: np.ndarray, n: int = 50) -> Detections:
+        xy = np.column_stack([np.full(n, 1.0), np.linspace(-1.0, 1.0, n)])
+        return Detections(t, "r1", tuple(Detection(xy=p, cov=cov) for p in xy))
+
+    world.process(frame(0.0, sharp))
+    assert world.association.d_inter == pytest.approx(0.03)
+    for k in range(1, D_INTER_SAMPLE // 50 + 3):
+        world.process(frame(float(k), blurred))
+    assert world.association.d_inter == pytest.approx(0.12)  # 450 of 500 blurred
 
 
 def test_a_field_prior_keeps_the_papers_defaults_and_the_config_wins():

@@ -25,6 +25,10 @@ from agrislam.records import DiscreteMeasurement, Measurement
 from agrislam.semantics.beliefs import BeliefTable
 
 FORBIDDEN = 1e6  # cost of an assignment the paper forbids (a_mn > 1)
+# without a field prior, d_inter is three times the median sharpest sigma of the survey's first
+# detections, this many, seen from near and far (the first frame's alone: 0.08-0.23 m in the
+# arena, whose survey median is 0.15 m)
+D_INTER_SAMPLE = 500
 
 
 @dataclass(frozen=True, slots=True)

@@ -48,8 +48,9 @@ from agrislam.world import WorldModel
 # 3: retired nodes in geometry/retired.py, frozen keyframes; 4: per-node integers in
 # geometry/key_table.py; 5: the truth as arrays, ground_truth.py; 6: tables grown by
 # growing.Doubling; 7: geometry/marginal_cache.py, the factor store's rows in use alone;
-# 8: the world's maintenance.Merger; 9: the Merger's sets of objects detected together)
-FORMAT = b"agrislam-checkpoint 9"
+# 8: the world's maintenance.Merger; 9: the Merger's sets of objects detected together;
+# 10: the world's rejoin.Rejoiner)
+FORMAT = b"agrislam-checkpoint 10"
 # the modules a checkpoint's objects may come from
 TRUSTED_MODULES = {"agrislam", "numpy", "collections", "copyreg", "builtins", "pydantic"}
 TRUSTED_MODULES |= {"pydantic_core", "scipy"}

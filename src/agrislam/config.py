@@ -347,10 +347,10 @@ class AssociationConfig(_Strict):
     landmark_defaults: bool = Field(
         True,
         description="a survey without a field prior is not the crop field the paper's "
-        "defaults are for: unless set here, it is gated on the whole innovation "
-        "(innovation_gate, at landmark_gate_chi2, over landmark_sigma_max), d_inter is three "
-        "of the detections' sharpest sigma, rows are off unless rows.enabled is set, and the "
-        "crop camera's confirmation of young objects (maintenance.existence) is off",
+        "defaults are for: unless set here, it is gated on the whole innovation (at "
+        "landmark_gate_chi2, over landmark_sigma_max), d_inter is three of its first "
+        "detections' median sharpest sigma, rows are off, the crop camera's confirmation of "
+        "young objects (maintenance.existence) is off, and a lost robot rejoins (rejoin.py)",
     )
     landmark_gate_chi2: float = Field(
         9.21, gt=0.0, description="the gate without a field prior: 99 % of a 2D position"

@@ -16,6 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from agrislam.association import (
+    D_INTER_SAMPLE,
     PlacedDetections,
     assign,
     association_matrix,
@@ -38,6 +39,7 @@ from agrislam.objects import ObjectTable
 from agrislam.prior.backend import PriorBackend
 from agrislam.prior.map import PriorMap
 from agrislam.records import Detection, Detections, FieldPrior, GnssFix, Meta, Odometry, Record
+from agrislam.rejoin import Rejoiner
 from agrislam.released import Released
 from agrislam.semantics.beliefs import BeliefTable
 from agrislam.semantics.heuristic import interest_surface
@@ -100,9 +102,11 @@ class WorldModel:
         self.existence = Existence(self.config.maintenance)
         self.anchor = None
         self.issues: Counter[str] = self.backend.issues  # with what the back end isolated
+        self.rejoiner = Rejoiner(self.index, self.issues)
         self.robots: dict[str, OdometryChain] = {}
         self._field_prior: FieldPrior | None = None
         self._settled = False  # the defaults that depend on the survey are chosen
+        self._sharpest = np.empty(0)  # the first detections' sharpest sigmas (d_inter)
         self.gnss = GnssFixes(self.config.gnss)
         self._timer = StageTimer(STAGES)
         self.prior: PriorMap | None = None  # a saved map this survey continues (issue 15)
@@ -188,31 +192,33 @@ class WorldModel:
             self.rows.use_prior(prior)
 
     def _settle_defaults(self, detections: list[Detection]) -> None:
-        """At the first detections: a survey without a field prior is mapped as point
+        """From the first detections on: a survey without a field prior is mapped as point
         landmarks (`association.landmark_defaults`), each default the config sets kept."""
-        self._settled = True
         configured = self.config.association
         if self._field_prior is not None or not configured.landmark_defaults:
+            self._settled = True
             return
-        chosen = configured.model_fields_set
+        chosen, first = configured.model_fields_set, len(self._sharpest) == 0
         cov = np.stack([self.sensor.detection_covariance(d) for d in detections])
-        sharpest = float(np.median(np.sqrt(np.linalg.eigvalsh(cov)[:, 0])))
+        self._sharpest = np.r_[self._sharpest, np.sqrt(np.linalg.eigvalsh(cov)[:, 0])]
+        self._settled = len(self._sharpest) >= D_INTER_SAMPLE
         generic = {
             "innovation_gate": True,
             "gate_chi2": configured.landmark_gate_chi2,
             "gate_sigma_max": configured.landmark_sigma_max,
             # nearer than three sigmas of its sharpest axis, a detection cannot tell two apart
-            "d_inter": 3.0 * sharpest,
+            "d_inter": 3.0 * float(np.median(self._sharpest)),
         }
         update = {k: v for k, v in generic.items() if k not in chosen}
         self.association = self.association.model_copy(update=update)
+        if not first:
+            return
         self._rows_off_by_default()
         self.merger.spare_together = True  # no plant spacing says how near two can be
+        self.rejoiner.gate_chi2 = self.association.gate_chi2  # no repeating rows to mislead
         # landmarks seen now and then from far: no confirmation (it cost VP 41 of 114 trees)
-        if "existence" not in self.config.maintenance.model_fields_set:
-            self.existence = Existence(
-                self.config.maintenance.model_copy(update={"existence": False})
-            )
+        if "existence" not in (maintenance := self.config.maintenance).model_fields_set:
+            self.existence = Existence(maintenance.model_copy(update={"existence": False}))
 
     def add_odometry(self, odom: Odometry) -> None:
         """Compose the motion into the robot's pending increment (DESIGN step 2)."""
@@ -364,7 +370,9 @@ class WorldModel:
             innovation,
         )
         chosen = assign(matrix)
-        return np.where(chosen >= 0, candidates[np.maximum(chosen, 0)], -1)
+        ids = np.where(chosen >= 0, candidates[np.maximum(chosen, 0)], -1)
+        pose = self.backend.current_pose(robot)
+        return self.rejoiner.rejoin(pose[:2], placed, ids, t, len(self.objects), self.backend)
 
     def _reach(self, placed: PlacedDetections) -> float:
         """The farthest an object may be from a detection and still be associated."""
@@ -535,7 +543,7 @@ class WorldModel:
     def release(self) -> None:
         """The run's map is taken (`snapshot`): the solver, the index and the per-object
         state go, so that writing a whole field's outputs reuses their memory (issue 14)."""
-        for part in ("backend", "objects", "index", "rows", "robots", "existence"):
+        for part in ("backend", "objects", "index", "rows", "robots", "existence", "rejoiner"):
             setattr(self, part, Released(part))
 
     # ----------------------------------------------------------------- helpers
@@ -583,15 +591,10 @@ class WorldModel:
         """The objects whose estimates may still move (not held on a frozen keyframe)."""
         return np.setdiff1d(self.active_ids(), self.backend.settled_objects(), assume_unique=True)
 
-    def _calibrate_depth(
-        self, robot: str, placed: PlacedDetections, object_ids: np.ndarray
-    ) -> None:
-        """Along-ray residuals of detections of well-triangulated objects refine the
-        depth bias (geometry/depth_bias.py)."""
-        if not self.config.sensor.estimate_depth_bias:
-            return
-        known = self.objects.n_meas[object_ids] > self.config.sensor.depth_bias_min_views
-        if known.any():
-            pose = self.backend.current_pose(robot)
-            predicted = se2.to_robot_frame(pose, self.backend.object_positions(object_ids[known]))
+    def _calibrate_depth(self, robot: str, placed: PlacedDetections, ids: np.ndarray) -> None:
+        """Along-ray residuals of well-triangulated objects refine the depth bias."""
+        known = self.objects.n_meas[ids] > self.config.sensor.depth_bias_min_views
+        if self.config.sensor.estimate_depth_bias and known.any():
+            xy = self.backend.object_positions(ids[known])
+            predicted = se2.to_robot_frame(self.backend.current_pose(robot), xy)
             self.depth_bias.observe(placed.robot_xy[known], predicted)

@@ -1,0 +1,167 @@
+"""A robot that lost its way rejoins the map (issue 11, not in the paper).
+
+A robot that sees no known object for a while drifts past its gates: its odometry's
+heading is worse than it reports, more so than the noise calibration has learnt yet
+(the arena: 0.1 rad in 30 s against a reported 0.01). Its detections then start objects of
+its own, it follows them and goes on lost, and when it meets known objects again the GNN of
+sec. 2.4 pairs them with whatever is near its wrong place.
+
+A frame with two or more detections that are new or went to objects started lately (its
+own copies, or the outliers of a survey that has seen its objects long since) is a sign.
+Pairs of such detections with pairs of settled objects around, at the same distance apart,
+each fix a correction of the robot's pose (rotation about the robot, then a shift); one that
+moves it by less than MAX_SHIFT_M and MAX_TURN_RAD, puts at least two more of the frame's
+detections on settled objects (within the association gate) than the GNN did, and has no
+distinct rival as good, is taken: those detections go to those objects, and their factors
+pull the robot back.
+"""
+
+from __future__ import annotations
+
+from collections import Counter, deque
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+from agrislam.association import PlacedDetections
+from agrislam.geometry.backend import GraphBackend
+from agrislam.geometry.calibration import mahalanobis
+from agrislam.spatial_index import SpatialIndex
+
+LOST_WINDOW_S = 30.0  # objects started this recently are not settled
+MAX_SHIFT_M = 1.0  # the largest correction of the robot's position
+MAX_TURN_RAD = 0.3  # and of its heading
+DISTINCT = (0.2, 0.05)  # (m, rad): corrections nearer than this are one
+SPACING_SIGMAS = 3.0  # two detections' distance apart matches two objects' within this
+REJOINED = "frames on which a lost robot rejoined the map (rejoin.py)"
+
+
+class Rejoiner:
+    """Finds the correction that puts a lost robot's frame back on settled objects."""
+
+    def __init__(self, index: SpatialIndex, issues: Counter[str]) -> None:
+        self.index, self.issues = index, issues  # the run's issues count the frames rejoined
+        self.gate_chi2: float | None = None  # the association's gate; None: off
+        self._started: deque[tuple[float, int]] = deque()  # (t, objects started by then)
+
+    def _settled_below(self, t: float, n_objects: int) -> int:
+        """Object ids below this were started more than LOST_WINDOW_S before `t`."""
+        self._started.append((t, n_objects))
+        while len(self._started) > 1 and self._started[1][0] <= t - LOST_WINDOW_S:
+            self._started.popleft()
+        return self._started[0][1] if self._started[0][0] <= t - LOST_WINDOW_S else 0
+
+    def rejoin(
+        self,
+        robot_xy: np.ndarray,  # (2,) the robot's position in the map
+        placed: PlacedDetections,
+        object_ids: np.ndarray,  # (m,) the GNN's choice, -1 new
+        t: float,
+        n_objects: int,  # objects started so far
+        backend: GraphBackend,
+    ) -> np.ndarray:
+        """`object_ids` with the frame put back on settled objects, or as they were."""
+        settled = self._settled_below(t, n_objects)
+        lost = np.flatnonzero((object_ids < 0) | (object_ids >= settled))
+        if self.gate_chi2 is None or len(lost) < 2 or settled == 0:
+            return object_ids
+        det_xy, det_cov = placed.xy, placed.cov
+        reach = MAX_SHIFT_M + MAX_TURN_RAD * np.linalg.norm(det_xy - robot_xy, axis=1).max()
+        ids = self.index.query(det_xy[lost], reach)
+        ids = ids[ids < settled]
+        if len(ids) < 2:
+            return object_ids
+        obj_xy, obj_cov = backend.object_positions(ids), backend.object_covariances(ids)
+        corrections = _corrections(robot_xy, det_xy, det_cov, lost, obj_xy)
+        if len(corrections) == 0:
+            return object_ids
+        cov = det_cov[:, None] + obj_cov[None, :]
+        on_settled = int((object_ids[object_ids >= 0] < settled).sum())
+        best = _best(corrections, robot_xy, det_xy, obj_xy, cov, self.gate_chi2, on_settled + 2)
+        if best is None:
+            return object_ids
+        rows, cols = best
+        rejoined = object_ids.copy()
+        rejoined[np.isin(rejoined, ids[cols])] = -1  # an object goes to one detection
+        rejoined[rows] = ids[cols]
+        self.issues[REJOINED] += 1
+        return rejoined
+
+
+def _corrections(
+    robot_xy: np.ndarray,
+    det_xy: np.ndarray,
+    det_cov: np.ndarray,
+    lost: np.ndarray,
+    obj_xy: np.ndarray,
+) -> np.ndarray:
+    """(h, 3) corrections (dx, dy, dtheta), rotation about the robot first, that put a pair
+    of the lost detections on a pair of objects as far apart, within the bounds."""
+    i, j = np.triu_indices(len(lost), 1)
+    i, j = lost[i], lost[j]
+    a, b = np.nonzero(~np.eye(len(obj_xy), dtype=bool))
+    # every (detection pair, object pair): (p, q) flattened
+    di, dj = np.repeat(i, len(a)), np.repeat(j, len(a))
+    oa, ob = np.tile(a, len(i)), np.tile(b, len(i))
+    seen = det_xy[dj] - det_xy[di]
+    there = obj_xy[ob] - obj_xy[oa]
+    gap = np.linalg.norm(seen, axis=1)
+    # the spread of the detections' distance apart: both covariances along the line
+    u = seen / np.maximum(gap, 1e-9)[:, None]
+    spread = np.einsum("pi,pij,pj->p", u, det_cov[di] + det_cov[dj], u)
+    ok = np.abs(gap - np.linalg.norm(there, axis=1)) <= SPACING_SIGMAS * np.sqrt(spread)
+    turn = np.arctan2(there[:, 1], there[:, 0]) - np.arctan2(seen[:, 1], seen[:, 0])
+    turn = (turn + np.pi) % (2.0 * np.pi) - np.pi
+    ok &= np.abs(turn) <= MAX_TURN_RAD
+    c, s = np.cos(turn), np.sin(turn)
+    mid = 0.5 * (det_xy[di] + det_xy[dj]) - robot_xy
+    turned = np.stack([c * mid[:, 0] - s * mid[:, 1], s * mid[:, 0] + c * mid[:, 1]], axis=1)
+    shift = 0.5 * (obj_xy[oa] + obj_xy[ob]) - (turned + robot_xy)
+    ok &= np.linalg.norm(shift, axis=1) <= MAX_SHIFT_M
+    return np.column_stack([shift, turn])[ok]
+
+
+def _best(
+    corrections: np.ndarray,
+    robot_xy: np.ndarray,
+    det_xy: np.ndarray,
+    obj_xy: np.ndarray,
+    cov: np.ndarray,  # (m, k, 2, 2)
+    gate_chi2: float,
+    needed: int,
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """The (detections, objects) the best correction matches within the gate, if it
+    matches at least `needed` and no distinct correction matches as many."""
+    results = []
+    for dx, dy, turn in corrections:
+        c, s = np.cos(turn), np.sin(turn)
+        rel = det_xy - robot_xy
+        moved = np.column_stack([c * rel[:, 0] - s * rel[:, 1], s * rel[:, 0] + c * rel[:, 1]])
+        moved += robot_xy + np.array([dx, dy])
+        cost = mahalanobis(obj_xy[None, :, :] - moved[:, None, :], cov)
+        inside = cost <= gate_chi2
+        if inside.any(axis=1).sum() < needed:
+            continue
+        rows, cols = linear_sum_assignment(np.where(inside, cost, 1e6))
+        keep = inside[rows, cols]
+        results.append(
+            (
+                int(keep.sum()),
+                float(cost[rows, cols][keep].sum()),
+                rows[keep],
+                cols[keep],
+                (dx, dy, turn),
+            )
+        )
+    results = [r for r in results if r[0] >= needed]
+    if not results:
+        return None
+    results.sort(key=lambda r: (-r[0], r[1]))
+    top = results[0]
+    for other in results[1:]:
+        if other[0] < top[0]:
+            break
+        far = np.hypot(other[4][0] - top[4][0], other[4][1] - top[4][1]) > DISTINCT[0]
+        if far or abs(other[4][2] - top[4][2]) > DISTINCT[1]:
+            return None  # two places fit as well: not sure where it is
+    return top[2], top[3]
