@@ -30,6 +30,7 @@ CORE = [
     "rejoin",
     "objects",
     "maintenance",
+    "range_outliers",
     "prior",
     "world",
 ]

@@ -183,3 +183,20 @@ def max_association_distance(
     (Sec. 2.4 states the looser bound max(d_inter, sqrt(lambda)) w_sem^-|Y|.)
     """
     return max(d_inter, sigma_max) * (1.0 - w_sem) ** (-0.5 * n_measured)
+
+
+def landmark_association(
+    current: AssociationConfig, configured: AssociationConfig, sharpest: np.ndarray
+) -> AssociationConfig:
+    """`current` as a survey without a field prior is associated (`landmark_defaults`),
+    each key `configured` sets kept: gated on the whole innovation, and d_inter three times
+    the median of the detections' `sharpest` sigmas (nearer, a detection cannot tell two
+    apart)."""
+    generic = {
+        "innovation_gate": True,
+        "gate_chi2": configured.landmark_gate_chi2,
+        "gate_sigma_max": configured.landmark_sigma_max,
+        "d_inter": 3.0 * float(np.median(sharpest)),
+    }
+    chosen = configured.model_fields_set
+    return current.model_copy(update={k: v for k, v in generic.items() if k not in chosen})

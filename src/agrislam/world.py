@@ -22,6 +22,7 @@ from agrislam.association import (
     association_matrix,
     informative_measurements,
     innovation_covariance,
+    landmark_association,
     max_association_distance,
 )
 from agrislam.config import AgrislamConfig, AssociationConfig, FieldSchema
@@ -38,6 +39,7 @@ from agrislam.maintenance import AfterFold, Existence, MaintenanceResult, Merger
 from agrislam.objects import ObjectTable
 from agrislam.prior.backend import PriorBackend
 from agrislam.prior.map import PriorMap
+from agrislam.range_outliers import RangeOutliers
 from agrislam.records import Detection, Detections, FieldPrior, GnssFix, Meta, Odometry, Record
 from agrislam.rejoin import Rejoiner
 from agrislam.released import Released
@@ -97,7 +99,7 @@ class WorldModel:
         self.index = SpatialIndex(self.association.index_margin, self.association.index_sweep_steps)
         self.objects.on_retire(self.index.forget)
         self._steps_since_rebuild = self._index_refines = 0
-        self._after_fold, self.merger = AfterFold(), Merger()
+        self._after_fold, self.merger, self.outliers = AfterFold(), Merger(), RangeOutliers()
         self.depth_bias = DepthBiasEstimator(self.config.sensor.depth_bias)
         self.existence = Existence(self.config.maintenance)
         self.anchor = None
@@ -105,8 +107,8 @@ class WorldModel:
         self.rejoiner = Rejoiner(self.index, self.issues)
         self.robots: dict[str, OdometryChain] = {}
         self._field_prior: FieldPrior | None = None
-        self._settled = False  # the defaults that depend on the survey are chosen
-        self._sharpest = np.empty(0)  # the first detections' sharpest sigmas (d_inter)
+        # the defaults that depend on the survey are chosen; the first sharpest sigmas (d_inter)
+        self._settled, self._sharpest = False, np.empty(0)
         self.gnss = GnssFixes(self.config.gnss)
         self._timer = StageTimer(STAGES)
         self.prior: PriorMap | None = None  # a saved map this survey continues (issue 15)
@@ -198,23 +200,15 @@ class WorldModel:
         if self._field_prior is not None or not configured.landmark_defaults:
             self._settled = True
             return
-        chosen, first = configured.model_fields_set, len(self._sharpest) == 0
+        first = len(self._sharpest) == 0
         cov = np.stack([self.sensor.detection_covariance(d) for d in detections])
         self._sharpest = np.r_[self._sharpest, np.sqrt(np.linalg.eigvalsh(cov)[:, 0])]
         self._settled = len(self._sharpest) >= D_INTER_SAMPLE
-        generic = {
-            "innovation_gate": True,
-            "gate_chi2": configured.landmark_gate_chi2,
-            "gate_sigma_max": configured.landmark_sigma_max,
-            # nearer than three sigmas of its sharpest axis, a detection cannot tell two apart
-            "d_inter": 3.0 * float(np.median(self._sharpest)),
-        }
-        update = {k: v for k, v in generic.items() if k not in chosen}
-        self.association = self.association.model_copy(update=update)
+        self.association = landmark_association(self.association, configured, self._sharpest)
         if not first:
             return
         self._rows_off_by_default()
-        self.merger.spare_together = True  # no plant spacing says how near two can be
+        self.merger.spare_together = self.outliers.enabled = True  # no plant spacing or rows
         self.rejoiner.gate_chi2 = self.association.gate_chi2  # no repeating rows to mislead
         # landmarks seen now and then from far: no confirmation (it cost VP 41 of 114 trees)
         if "existence" not in (maintenance := self.config.maintenance).model_fields_set:
@@ -272,6 +266,7 @@ class WorldModel:
         with timer("confirm"):
             self.existence.observe(placed.robot_xy)
             pose = self.backend.current_pose(robot)
+            self.outliers.saw(pose, placed, object_ids, self.index, self.backend, self.objects)
             dropped = self.existence.look(pose, self.index, seen, self.objects, self._first_own)
         with timer("optimise"):
             sigma_scale = float(self.noise.scale.sigma[0])
@@ -459,7 +454,8 @@ class WorldModel:
         ids = self.objects.active(np.arange(self._first_own, len(self.objects)))  # not saved
         poses = [self.backend.trajectory(r)[1] for r, c in self.robots.items() if c.started]
         absent = self.existence.absent(ids, self.backend.object_positions, self.objects, poses)
-        result.pruned += self._prune(absent)
+        outliers = self.outliers.made_of_outliers(ids, self.objects.n_meas)
+        result.pruned += self._prune(sorted(set(absent + outliers)))
         return result
 
     def _maintain(
