@@ -17,10 +17,10 @@ OUTLIER_MAX_MEAS = 10
 
 
 class RangeOutliers:
-    """Objects made of range outliers. A range-bearing
-    sensor's gross range error puts a detection on the ray of the landmark it saw, at a
-    wrong range; the object it starts catches the next such detections from about the same
-    viewpoint in its gate and lives on a few (arena: 2-9 where landmarks have hundreds).
+    """Objects made of range outliers. A range-bearing sensor's gross range error puts a
+    detection on the ray of the landmark it saw, at a wrong range; the object it starts
+    catches the next such detections from about the same viewpoint in its gate and lives
+    on a few (arena: 2-9 where landmarks have hundreds).
     A detection of a young object (detected at most OUTLIER_MAX_MEAS times) is explained
     when a settled object the frame did not detect lies on its ray (within three bearing
     sigmas) at another range (beyond three range sigmas); an object all of whose detections

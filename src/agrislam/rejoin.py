@@ -19,6 +19,7 @@ pull the robot back.
 from __future__ import annotations
 
 from collections import Counter, deque
+from typing import NamedTuple
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
@@ -113,12 +114,18 @@ def _corrections(
     turn = np.arctan2(there[:, 1], there[:, 0]) - np.arctan2(seen[:, 1], seen[:, 0])
     turn = (turn + np.pi) % (2.0 * np.pi) - np.pi
     ok &= np.abs(turn) <= MAX_TURN_RAD
-    c, s = np.cos(turn), np.sin(turn)
-    mid = 0.5 * (det_xy[di] + det_xy[dj]) - robot_xy
-    turned = np.stack([c * mid[:, 0] - s * mid[:, 1], s * mid[:, 0] + c * mid[:, 1]], axis=1)
+    turned = _turned(0.5 * (det_xy[di] + det_xy[dj]) - robot_xy, turn)
     shift = 0.5 * (obj_xy[oa] + obj_xy[ob]) - (turned + robot_xy)
     ok &= np.linalg.norm(shift, axis=1) <= MAX_SHIFT_M
     return np.column_stack([shift, turn])[ok]
+
+
+class _Fit(NamedTuple):
+    matched: int  # detections on settled objects within the gate
+    cost: float  # their Mahalanobis distances, summed
+    rows: np.ndarray  # those detections
+    cols: np.ndarray  # and their objects
+    correction: np.ndarray  # (dx, dy, dtheta)
 
 
 def _best(
@@ -132,36 +139,32 @@ def _best(
 ) -> tuple[np.ndarray, np.ndarray] | None:
     """The (detections, objects) the best correction matches within the gate, if it
     matches at least `needed` and no distinct correction matches as many."""
-    results = []
-    for dx, dy, turn in corrections:
-        c, s = np.cos(turn), np.sin(turn)
-        rel = det_xy - robot_xy
-        moved = np.column_stack([c * rel[:, 0] - s * rel[:, 1], s * rel[:, 0] + c * rel[:, 1]])
-        moved += robot_xy + np.array([dx, dy])
+    fits = []
+    for correction in corrections:
+        moved = _turned(det_xy - robot_xy, correction[2]) + robot_xy + correction[:2]
         cost = mahalanobis(obj_xy[None, :, :] - moved[:, None, :], cov)
         inside = cost <= gate_chi2
         if inside.any(axis=1).sum() < needed:
             continue
         rows, cols = linear_sum_assignment(np.where(inside, cost, 1e6))
         keep = inside[rows, cols]
-        results.append(
-            (
-                int(keep.sum()),
-                float(cost[rows, cols][keep].sum()),
-                rows[keep],
-                cols[keep],
-                (dx, dy, turn),
-            )
-        )
-    results = [r for r in results if r[0] >= needed]
-    if not results:
+        if keep.sum() >= needed:
+            total = float(cost[rows, cols][keep].sum())
+            fits.append(_Fit(int(keep.sum()), total, rows[keep], cols[keep], correction))
+    if not fits:
         return None
-    results.sort(key=lambda r: (-r[0], r[1]))
-    top = results[0]
-    for other in results[1:]:
-        if other[0] < top[0]:
+    fits.sort(key=lambda f: (-f.matched, f.cost))
+    top = fits[0]
+    for other in fits[1:]:
+        if other.matched < top.matched:
             break
-        far = np.hypot(other[4][0] - top[4][0], other[4][1] - top[4][1]) > DISTINCT[0]
-        if far or abs(other[4][2] - top[4][2]) > DISTINCT[1]:
+        apart = other.correction - top.correction
+        if np.hypot(*apart[:2]) > DISTINCT[0] or abs(apart[2]) > DISTINCT[1]:
             return None  # two places fit as well: not sure where it is
-    return top[2], top[3]
+    return top.rows, top.cols
+
+
+def _turned(xy: np.ndarray, turn: np.ndarray | float) -> np.ndarray:
+    """(p, 2) points turned about the origin by `turn` (one angle, or one per point)."""
+    c, s = np.cos(turn), np.sin(turn)
+    return np.stack([c * xy[:, 0] - s * xy[:, 1], s * xy[:, 0] + c * xy[:, 1]], axis=1)
