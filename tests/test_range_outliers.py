@@ -33,16 +33,19 @@ def world(enabled: bool = True):
     return outliers, objects, index
 
 
-def detect(outliers, objects, index, seen: list[int]) -> None:
-    """One frame from ROBOT detecting the objects `seen`, where they are."""
+def detect(outliers, objects, index, seen: list[int], pose_cov=None, xy=XY) -> None:
+    """One frame from ROBOT detecting the objects `seen` at `xy`, the robot's pose adding
+    `pose_cov` (2, 2) to each detection."""
     seen_ids = np.array(seen)
     objects.beliefs.update(seen_ids, [{}] * len(seen), 20.0)
+    cov = np.repeat(COV[None], len(seen), axis=0)
     placed = PlacedDetections(
-        xy=XY[seen_ids],
-        cov=np.repeat(COV[None], len(seen), axis=0),
+        xy=xy[seen_ids],
+        cov=cov,
         measurements=[{}] * len(seen),
-        robot_xy=XY[seen_ids],
-        robot_cov=np.repeat(COV[None], len(seen), axis=0),
+        robot_xy=xy[seen_ids],
+        robot_cov=cov,
+        pose_cov=None if pose_cov is None else np.repeat(pose_cov[None], len(seen), axis=0),
     )
     outliers.saw(ROBOT, placed, seen_ids, index, Positions(), objects)
 
@@ -76,3 +79,16 @@ def test_with_a_field_prior_nothing_is_counted():
     detect(outliers, objects, index, [SETTLED])
     detect(outliers, objects, index, [ON_RAY])
     assert outliers.made_of_outliers(np.arange(len(XY)), objects.n_meas) == []
+
+
+def test_the_robots_pose_uncertainty_widens_the_ray():
+    # 0.1 rad off the landmark's bearing: seven detection sigmas, but the robot is unsure of
+    # its heading by about that much (0.2 m across at 2 m)
+    xy = XY.copy()
+    xy[ON_RAY] = 2.0 * np.array([np.cos(0.1), np.sin(0.1)])
+    for pose_cov, made in ((None, []), (np.diag([0.0, 0.2**2]), [ON_RAY])):
+        outliers, objects, index = world()
+        detect(outliers, objects, index, [SETTLED], xy=xy)
+        for _ in range(2):
+            detect(outliers, objects, index, [ON_RAY], pose_cov=pose_cov, xy=xy)
+        assert outliers.made_of_outliers(np.arange(len(XY)), objects.n_meas) == made

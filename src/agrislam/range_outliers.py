@@ -23,7 +23,8 @@ class RangeOutliers:
     on a few (arena: 2-9 where landmarks have hundreds).
     A detection of a young object (detected at most OUTLIER_MAX_MEAS times) is explained
     when a settled object the frame did not detect lies on its ray (within three bearing
-    sigmas) at another range (beyond three range sigmas); an object all of whose detections
+    sigmas, the robot's pose uncertainty included) at another range (beyond three of the
+    detection's range sigmas); an object all of whose detections
     are explained is pruned at the end of the survey. Without a field prior only
     (`enabled`): a crop camera sees plants in rows along its rays."""
 
@@ -60,6 +61,9 @@ class RangeOutliers:
         across = along @ np.array([[0.0, 1.0], [-1.0, 0.0]])
         cov = cov[young]
         sigma_r = np.sqrt(np.einsum("yi,yij,yj->y", along, cov, along))
+        if placed.pose_cov is not None:  # the robot unsure of its pose widens the bearing
+            turn = se2.rotation(pose[2])
+            cov = cov + turn.T @ placed.pose_cov[young] @ turn
         sigma_b = np.sqrt(np.einsum("yi,yij,yj->y", across, cov, across)) / rng
         bearing = np.arctan2(along[:, 1], along[:, 0])
         off = bearing[:, None] - np.arctan2(settled[:, 1], settled[:, 0])[None, :]
