@@ -154,14 +154,14 @@ class Merger:
                 continue
             near = index.query(xy[None, :], d_inter)
             near = near[(near != obj) & ~np.isin(near, list(used))]
-            crowd = np.append(near, obj)
-            ghost = self.surplus(crowd, n_frames) if self.spare_together else None
-            if ghost is not None:
-                obj, near = ghost, crowd[crowd != ghost]
-                xy = positions(np.array([ghost]))[0]
-            elif self.spare_together:
-                fewer_frames = np.minimum(n_frames[obj], n_frames[near])
-                near = near[self.together(obj, near) <= TOGETHER_SHARE * fewer_frames]
+            if self.spare_together:
+                crowd = np.append(near, obj)
+                if (ghost := self.surplus(crowd, n_frames)) is not None:
+                    obj, near = ghost, crowd[crowd != ghost]
+                    xy = positions(np.array([ghost]))[0]
+                else:
+                    fewer_frames = np.minimum(n_frames[obj], n_frames[near])
+                    near = near[self.together(obj, near) <= TOGETHER_SHARE * fewer_frames]
             if len(near) == 0:
                 continue
             d = np.linalg.norm(positions(near) - xy, axis=1)

@@ -44,9 +44,9 @@ class RangeOutliers:
     ) -> None:
         """Counts the frame's detections of young objects that settled objects explain."""
         robot_xy, cov, n_meas = placed.robot_xy, placed.robot_cov, objects.n_meas
-        if robot_xy is None or cov is None:
+        if not self.enabled or robot_xy is None or cov is None:
             return
-        young = np.flatnonzero(n_meas[object_ids] <= OUTLIER_MAX_MEAS) if self.enabled else []
+        young = np.flatnonzero(n_meas[object_ids] <= OUTLIER_MAX_MEAS)
         if len(robot_xy):  # the farthest the sensor sees, so far: where a landmark may stand
             self._reach = max(self._reach, float(np.linalg.norm(robot_xy, axis=1).max()))
         if len(young) == 0:

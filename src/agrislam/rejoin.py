@@ -62,9 +62,11 @@ class Rejoiner:
         backend: GraphBackend,
     ) -> np.ndarray:
         """`object_ids` with the frame put back on settled objects, or as they were."""
+        if self.gate_chi2 is None:
+            return object_ids
         settled = self._settled_below(t, n_objects)
         lost = np.flatnonzero((object_ids < 0) | (object_ids >= settled))
-        if self.gate_chi2 is None or len(lost) < 2 or settled == 0:
+        if len(lost) < 2 or settled == 0:
             return object_ids
         det_xy, det_cov = placed.xy, placed.cov
         reach = MAX_SHIFT_M + MAX_TURN_RAD * np.linalg.norm(det_xy - robot_xy, axis=1).max()

@@ -589,8 +589,10 @@ class WorldModel:
 
     def _calibrate_depth(self, robot: str, placed: PlacedDetections, ids: np.ndarray) -> None:
         """Along-ray residuals of well-triangulated objects refine the depth bias."""
+        if not self.config.sensor.estimate_depth_bias:
+            return
         known = self.objects.n_meas[ids] > self.config.sensor.depth_bias_min_views
-        if self.config.sensor.estimate_depth_bias and known.any():
+        if known.any():
             xy = self.backend.object_positions(ids[known])
             predicted = se2.to_robot_frame(self.backend.current_pose(robot), xy)
             self.depth_bias.observe(placed.robot_xy[known], predicted)
