@@ -14,10 +14,11 @@ ROBOTS = 3
 STEP = np.array([0.2, 0.0, 0.2])  # each robot circles inside the landmarks
 
 
-def survey(steps: int = 60, robots: int = ROBOTS, refine_turn_deg: float = 0.0, bias=0.0):
+def survey(steps: int = 60, robots: int = ROBOTS, refine_turn_deg: float = 0.0, bias=0.0, kept=100):
     """Robots circling inside four landmarks, seeing them all at every step; the odometry
     reports `bias` rad more turn than was driven."""
-    g = make_backend(SlamConfig(window=5, refine_turn_deg=refine_turn_deg), RowsConfig())
+    slam = SlamConfig(window=5, refine_turn_deg=refine_turn_deg, keyframes_kept=kept)
+    g = make_backend(slam, RowsConfig())
     poses = {}
     for n in range(robots):
         angle = 2 * np.pi * n / robots
@@ -73,3 +74,13 @@ def test_with_several_robots_a_turn_relinearises_during_the_survey_and_alone_it_
         if robots > 1:
             keyframes = sum(len(frames) for frames in g._keyframes.values())
             assert widest_live_factor(g) < keyframes
+
+
+def test_robots_sharing_the_map_share_the_keyframes_it_keeps():
+    """Each fold links every robot's keyframes through the landmarks they share: kept per
+    robot, five robots' graph grew five times as wide (issue 11)."""
+    alone, together = survey(steps=40, robots=1, kept=6), survey(steps=120, robots=3, kept=6)
+    assert [len(frames) for frames in alone._keyframes.values()] == [7]  # the first + 6
+    assert [len(frames) for frames in together._keyframes.values()] == [3, 3, 3]
+    assert len(together._frozen) > 0 and not set(together._frozen.keys().tolist()) & together._live
+    np.testing.assert_allclose(together.object_positions(np.arange(4)), LANDMARKS, atol=1e-3)

@@ -399,10 +399,10 @@ class SlamConfig(_Strict):
     keyframes_kept: int = Field(
         100,
         ge=0,
-        description="keyframes each robot keeps in the graph; older ones are folded away "
-        "and held where they stand, with what hangs on them, so the graph stays bounded "
-        "however long the survey (a loop longer than this localises against the old map); "
-        "0 = every keyframe stays",
+        description="keyframes the graph keeps, shared equally by the robots; older ones are "
+        "folded away and held where they stand, with what hangs on them, so the graph stays "
+        "bounded however long the survey (a loop longer than this localises against the old "
+        "map); 0 = every keyframe stays",
     )
     covariance_reuse_steps: int = Field(
         10,
