@@ -32,7 +32,7 @@ def supported_versions() -> tuple[tuple[int, int], tuple[int, int]]:
         r'requires-python\s*=\s*">=(\d+)\.(\d+),\s*<(\d+)\.(\d+)"', PYPROJECT.read_text()
     )
     if found is None:
-        sys.exit("pyproject.toml: requires-python must read \">=3.X,<3.Y\"")
+        sys.exit('pyproject.toml: requires-python must read ">=3.X,<3.Y"')
     a, b, c, d = (int(v) for v in found.groups())
     return (a, b), (c, d)
 
