@@ -13,7 +13,8 @@ without tuning.
 
 `--set` changes every variant the same way (to see past a failure of the default; such a
 run is not the default configuration, and the title says so). A run that crashes is a row
-too: where it stopped and why.
+too: where it stopped and why. With several seeds each variant gets a row of their means:
+one seed's association swings by a few points with any small change, so judge on those.
 """
 
 from __future__ import annotations
@@ -158,14 +159,29 @@ def score(result: RunResult, world: ClockedWorld, records: list[Record], survey_
     )
 
 
-def cells(name: str, seed: int, s: Score) -> list[str]:
+def mean_score(scores: list[Score]) -> Score:
+    """The seeds' mean of each figure (counts to 0.1): a change is judged on it, as one
+    seed's association swings by a few points with any small change (issue 11)."""
+    fields = {}
+    for name in Score.__dataclass_fields__:
+        values = [getattr(s, name) for s in scores]
+        if name in ("first_ms", "last_ms"):
+            fields[name] = tuple(np.mean(values, axis=0).tolist())
+        elif name == "noise" or any(v is None for v in values):
+            fields[name] = None
+        else:
+            fields[name] = round(float(np.mean(values)), 1 if isinstance(values[0], int) else 6)
+    return Score(**fields)
+
+
+def cells(name: str, seed: int | str, s: Score) -> list[str]:
     fails = s.failures()
     return [
         name,
         str(seed),
-        f"{s.mapped} / {s.n_truth}",
-        str(s.spurious),
-        str(s.duplicates),
+        f"{s.mapped:g} / {s.n_truth:g}",
+        f"{s.spurious:g}",
+        f"{s.duplicates:g}",
         f"{s.purity:.3f}",
         f"{s.completeness:.3f}",
         f"{s.landmark_rms:.3f}",
@@ -273,6 +289,7 @@ def main() -> None:
     for column, _ in COLUMNS:
         table.add_column(column)
     table.add_row(*(target for _, target in COLUMNS), style="dim")
+    scores: dict[str, list[Score]] = {name: [] for name in args.variants}
     for seed in args.seeds:
         records, gen_s = simulate(seed, args.minutes, args.attribute)
         frames = sum(isinstance(r, Detections) for r in records)
@@ -295,8 +312,13 @@ def main() -> None:
                 if isinstance(res, Score) and res.noise:
                     console.print(f"  {name}: noise scales {res.noise}")
                 row = cells(name, seed, res) if isinstance(res, Score) else res
+            if isinstance(res, Score):
+                scores[name].append(res)
             console.print("  " + " | ".join(row))  # as it comes, in case the run is cut short
             table.add_row(*row)
+    for name, done_seeds in scores.items():
+        if len(done_seeds) > 1:
+            table.add_row(*cells(name, f"mean of {len(done_seeds)}", mean_score(done_seeds)))
     console.print(table)
 
 

@@ -1,0 +1,45 @@
+"""benchmarks/bench_arena.py's scoring: the mean row a change is judged on (issue 11)."""
+
+import importlib.util
+import sys
+from pathlib import Path
+
+
+def bench_arena():
+    path = Path(__file__).parents[1] / "benchmarks" / "bench_arena.py"
+    spec = importlib.util.spec_from_file_location("bench_arena", path)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules["bench_arena"] = module  # its dataclasses look their module up
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_the_mean_row_averages_each_figure_and_is_judged_like_a_seed():
+    b = bench_arena()
+
+    def score(mapped, spurious, purity, first, last, attribute=None):
+        return b.Score(
+            mapped,
+            17,
+            spurious,
+            2,
+            purity,
+            0.96,
+            0.05,
+            0.06,
+            1.5,
+            (2.0, first),
+            (3.0, last),
+            60.0,
+            900.0,
+            attribute,
+            {"heading": 4.0},
+        )
+
+    mean = b.mean_score([score(17, 1, 0.96, 4.0, 5.0), score(16, 2, 0.94, 4.0, 7.0, 0.9)])
+    assert (mean.mapped, mean.spurious, mean.purity) == (16.5, 1.5, 0.95)
+    assert mean.first_ms == (2.0, 4.0) and mean.last_ms == (3.0, 6.0)
+    assert mean.attribute is None and mean.noise is None  # not every seed has them
+    assert mean.failures() == ["mapped"]  # p95 6.0 = 1.5 x 4.0 still passes
+    row = b.cells("agrislam", "mean of 2", mean)
+    assert row[1:5] == ["mean of 2", "16.5 / 17", "1.5", "2"]
