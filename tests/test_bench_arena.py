@@ -1,21 +1,10 @@
 """benchmarks/bench_arena.py's scoring: the mean row a change is judged on (issue 11)."""
 
-import importlib.util
-import sys
-from pathlib import Path
-
-
-def bench_arena():
-    path = Path(__file__).parents[1] / "benchmarks" / "bench_arena.py"
-    spec = importlib.util.spec_from_file_location("bench_arena", path)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules["bench_arena"] = module  # its dataclasses look their module up
-    spec.loader.exec_module(module)
-    return module
+from benchmark_module import load_benchmark
 
 
 def test_the_mean_row_averages_each_figure_and_is_judged_like_a_seed():
-    b = bench_arena()
+    b = load_benchmark("bench_arena")
 
     def score(mapped, spurious, purity, first, last, attribute=None):
         return b.Score(

@@ -4,10 +4,7 @@ their anchors are exercised), and a simulated survey through all three."""
 
 from __future__ import annotations
 
-import importlib.util
 import math
-import sys
-from pathlib import Path
 
 import gtsam
 import numpy as np
@@ -24,6 +21,7 @@ from agrislam.geometry.batch import BatchBackend
 from agrislam.geometry.conditioning import FREE_SIGMA
 from agrislam.geometry.incremental import IncrementalBackend
 from agrislam.geometry.se2 import rotation
+from benchmark_module import load_benchmark
 
 BACKENDS = {
     "batch": dict(backend="batch"),
@@ -231,12 +229,7 @@ def test_bad_input_names_what_and_where():
 # ------------------------------------------------------------------ simulated survey
 def bench():
     """benchmarks/bench_geometry.py: its simulated surveys and driver, tested here too."""
-    path = Path(__file__).parents[1] / "benchmarks" / "bench_geometry.py"
-    spec = importlib.util.spec_from_file_location("bench_geometry", path)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules["bench_geometry"] = module  # its dataclasses look their module up
-    spec.loader.exec_module(module)
-    return module
+    return load_benchmark("bench_geometry")
 
 
 @pytest.fixture(scope="module")

@@ -3,10 +3,7 @@ and their effect on a simulated survey (crops pulled onto their rows, weeds left
 
 from __future__ import annotations
 
-import importlib.util
 import math
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -23,6 +20,7 @@ from agrislam.geometry.rows import (
     wrap_row_angle,
 )
 from agrislam.records import FieldPrior
+from benchmark_module import load_benchmark
 
 ANGLE = math.radians(10.0)
 NORMAL = np.array([-math.sin(ANGLE), math.cos(ANGLE)])
@@ -131,12 +129,7 @@ def test_meta_prior_sets_spacing_and_angle():
 
 # ------------------------------------------------------------------ simulated survey
 def bench():
-    path = Path(__file__).parents[1] / "benchmarks" / "bench_geometry.py"
-    spec = importlib.util.spec_from_file_location("bench_geometry", path)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules["bench_geometry"] = module
-    spec.loader.exec_module(module)
-    return module
+    return load_benchmark("bench_geometry")
 
 
 @pytest.fixture(scope="module")
