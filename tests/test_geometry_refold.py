@@ -3,6 +3,8 @@ robots sharing landmarks, into one dense factor over every keyframe, which iSAM2
 re-eliminate at every step after (issue 11). A refine during the survey refuses such a
 fold and relinearises the keyframe graph instead."""
 
+import itertools
+
 import numpy as np
 
 from agrislam.config import RowsConfig, SlamConfig
@@ -32,13 +34,16 @@ def survey(steps: int = 60, robots: int = ROBOTS, refine_turn_deg: float = 0.0, 
             poses[name] = compose(poses[name], STEP)
             reported = STEP + np.array([0.0, 0.0, bias])
             g.add_odometry(name, float(k), reported, np.diag([1e-3, 1e-3, 1e-4]))
-        for obj, xy in enumerate(LANDMARKS):
-            rel = rotation(poses[name][2]).T @ (xy - poses[name][:2])
-            g.add_observation(
-                name, obj, RelativePosition(rel, detection_covariance(rel, 0.05, 0.01))
-            )
+        look(g, name, poses[name])
         g.update()
     return g
+
+
+def look(g, robot: str, pose: np.ndarray) -> None:
+    """`robot` at `pose` sees the four landmarks."""
+    for obj, xy in enumerate(LANDMARKS):
+        rel = rotation(pose[2]).T @ (xy - pose[:2])
+        g.add_observation(robot, obj, RelativePosition(rel, detection_covariance(rel, 0.05, 0.01)))
 
 
 def widest_live_factor(g) -> int:
@@ -84,3 +89,25 @@ def test_robots_sharing_the_map_share_the_keyframes_it_keeps():
     assert [len(frames) for frames in together._keyframes.values()] == [3, 3, 3]
     assert len(together._frozen) > 0 and not set(together._frozen.keys().tolist()) & together._live
     np.testing.assert_allclose(together.object_positions(np.arange(4)), LANDMARKS, atol=1e-3)
+
+
+def test_a_robot_that_joins_shrinks_the_others_share_a_keyframe_a_fold():
+    """Aged at once, the first robot's surplus would be folded away in one stalling step."""
+    g = make_backend(SlamConfig(window=5, refine_turn_deg=0.0, keyframes_kept=6), RowsConfig())
+    for obj, xy in enumerate(LANDMARKS):
+        g.add_object(obj, xy)
+    poses = {"r0": np.array([1.0, 0.0, np.pi / 2]), "r1": np.array([-1.0, 0.0, -np.pi / 2])}
+    kept = []
+    for k in range(100):
+        name = "r0" if k < 40 or k % 2 else "r1"
+        if name not in g._keyframes:
+            g.add_robot(name, poses[name], np.array([1e-3, 1e-3, 1e-4]))
+        else:
+            poses[name] = compose(poses[name], STEP)
+            g.add_odometry(name, float(k), STEP, np.diag([1e-3, 1e-3, 1e-4]))
+        look(g, name, poses[name])
+        g.update()
+        kept.append(len(g._keyframes["r0"]))
+    assert kept[39] == 7  # alone, the first keyframe and its six
+    assert all(before - after <= 1 for before, after in itertools.pairwise(kept))
+    assert kept[-1] == 4  # then the first and half of six

@@ -79,6 +79,7 @@ SLOTS_SLACK, SLOTS_FLOOR = 8, 8000  # iSAM2 rebuilt when its slots pass slack x 
 # keyframe graph instead: iSAM2 re-eliminated that factor at every step after (issue 11:
 # five robots sharing landmarks, 367 keyframes, 600 ms steps)
 REFOLD_MAX_KEYS = 100
+AGED_PER_FOLD = 2  # per robot: one that joins shrinks the others' share over folds, not in one
 
 
 class IncrementalBackend(BackendBase):
@@ -327,16 +328,15 @@ class IncrementalBackend(BackendBase):
         self.rolls += 1
 
     def _aged_keyframes(self) -> set[int]:
-        """Keyframes past each robot's newest share of `keyframes_kept` (the first pose
-        stays); they leave the permanent set and the robot's list. Robots share the budget:
-        a fold links the keyframes of the robots that saw a landmark, and five robots keeping
-        100 each grew the arena's Bayes tree all survey (issue 11: pose marginal 0.4 -> 11 ms)."""
+        """Keyframes past each robot's newest share of `keyframes_kept` (the first stays),
+        out of the permanent set and the robot's list. Shared: a fold ties the keyframes of
+        robots that saw one landmark; five keeping 100 each grew one Bayes tree (issue 11)."""
         aged: set[int] = set()
         if not (kept := self.slam.keyframes_kept):
             return aged
         kept = max(kept // max(len(self._keyframes), 1), 1)
         for robot, frames in self._keyframes.items():
-            old = frames[1:-kept] if len(frames) > kept + 1 else []
+            old = frames[1:-kept][:AGED_PER_FOLD] if len(frames) > kept + 1 else []
             self._keyframes[robot] = frames[:1] + frames[len(old) + 1 :]
             aged.update(old)
         self._permanent -= aged
