@@ -66,8 +66,7 @@ class RangeOutliers:
             cov = cov + turn.T @ placed.pose_cov[young] @ turn
         sigma_b = np.sqrt(np.einsum("yi,yij,yj->y", across, cov, across)) / rng
         bearing = np.arctan2(along[:, 1], along[:, 0])
-        off = bearing[:, None] - np.arctan2(settled[:, 1], settled[:, 0])[None, :]
-        off = np.abs((off + np.pi) % (2.0 * np.pi) - np.pi)
+        off = np.abs(se2.wrap_angle(bearing[:, None] - np.arctan2(settled[:, 1], settled[:, 0])))
         range_off = np.abs(rng[:, None] - np.linalg.norm(settled, axis=1)[None, :])
         explained = (off <= 3.0 * sigma_b[:, None]) & (range_off > 3.0 * sigma_r[:, None])
         for obj in object_ids[young[explained.any(axis=1)]].tolist():

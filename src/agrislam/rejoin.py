@@ -27,6 +27,7 @@ from scipy.optimize import linear_sum_assignment
 from agrislam.association import PlacedDetections
 from agrislam.geometry.backend import GraphBackend
 from agrislam.geometry.calibration import mahalanobis
+from agrislam.geometry.se2 import rotation, wrap_angle
 from agrislam.spatial_index import SpatialIndex
 
 LOST_WINDOW_S = 30.0  # objects started this recently are not settled
@@ -113,8 +114,7 @@ def _corrections(
     u = seen / np.maximum(gap, 1e-9)[:, None]
     spread = np.einsum("pi,pij,pj->p", u, det_cov[di] + det_cov[dj], u)
     ok = np.abs(gap - np.linalg.norm(there, axis=1)) <= SPACING_SIGMAS * np.sqrt(spread)
-    turn = np.arctan2(there[:, 1], there[:, 0]) - np.arctan2(seen[:, 1], seen[:, 0])
-    turn = (turn + np.pi) % (2.0 * np.pi) - np.pi
+    turn = wrap_angle(np.arctan2(there[:, 1], there[:, 0]) - np.arctan2(seen[:, 1], seen[:, 0]))
     ok &= np.abs(turn) <= MAX_TURN_RAD
     turned = _turned(0.5 * (det_xy[di] + det_xy[dj]) - robot_xy, turn)
     shift = 0.5 * (obj_xy[oa] + obj_xy[ob]) - (turned + robot_xy)
@@ -168,5 +168,4 @@ def _best(
 
 def _turned(xy: np.ndarray, turn: np.ndarray | float) -> np.ndarray:
     """(p, 2) points turned about the origin by `turn` (one angle, or one per point)."""
-    c, s = np.cos(turn), np.sin(turn)
-    return np.stack([c * xy[:, 0] - s * xy[:, 1], s * xy[:, 0] + c * xy[:, 1]], axis=1)
+    return np.einsum("...ij,...j->...i", rotation(turn), xy)
