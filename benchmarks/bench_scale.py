@@ -7,12 +7,15 @@ resident set size (`getrusage`), so one survey's memory never counts for another
 with a 40-plant survey gives the interpreter's and libraries' baseline; the slope per plant
 (between the two largest sizes) extrapolates the largest to 1,000,000 plants. Survey time
 is the survey's own (its time stamps) and its frames at 1 frame per second. The smallest
-size runs again after the largest: this machine's speed drifts by 20-30 % over the half
+size runs again after the largest, and over and over beside each larger size (on the
+other core, in a child of its own): this machine's speed drifts by 20-60 % over the half
 hour the largest takes (the same 400-plant survey: 4.3 to 5.7 ms median step within an
-hour), so the step ratios are against both of its runs' steps together, and both rows are
-printed to show the drift. Accuracy is the simulator's truth: the trajectory's RMS against
-dead reckoning's (the default survey has no GNSS, so a large field bends along its rows:
-rigid alignment cannot take that out) and the association's purity.
+hour), so the step ratios are given twice: against the smallest size's two runs before and
+after, and against its runs beside the largest, at the same moments of the machine (the
+ratio the target is judged on). Every child does its linear algebra on one thread.
+Accuracy is the simulator's truth: the trajectory's RMS against dead reckoning's (the
+default survey has no GNSS, so a large field bends along its rows: rigid alignment cannot
+take that out) and the association's purity.
 
     python benchmarks/bench_scale.py [--sizes 400 10000] [--huge] [--seed 2]
                                      [--baseline-src ../other-checkout/src]
@@ -88,18 +91,49 @@ def accuracy(metrics: dict[str, Any]) -> dict[str, float]:
     }
 
 
-def measure(plants: int, seed: int, src: Path, changes: dict[str, Any]) -> dict[str, Any]:
-    """The survey in a child process with `src` on its path; its figures."""
-    env = {**os.environ, "PYTHONPATH": str(src)}
+def child_command(plants: int, seed: int, src: Path, changes: dict[str, Any]) -> dict[str, Any]:
+    """The arguments of subprocess.run / Popen for a child surveying `plants` with `src`
+    on its path, its linear algebra on one thread (so that two children share the two
+    cores evenly)."""
+    threads = {name: "1" for name in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")}
     command = [sys.executable, __file__, "--child", str(plants), "--seed", str(seed)]
     command += ["--set", json.dumps(changes)]
+    return {"args": command, "env": {**os.environ, **threads, "PYTHONPATH": str(src)}}
+
+
+def measure(plants: int, seed: int, src: Path, changes: dict[str, Any]) -> dict[str, Any]:
+    """The survey in a child process with `src` on its path; its figures."""
     start = time.perf_counter()
-    done = subprocess.run(command, env=env, capture_output=True, text=True, check=False)
+    done = subprocess.run(
+        **child_command(plants, seed, src, changes), capture_output=True, text=True, check=False
+    )
     if done.returncode != 0:
         raise RuntimeError(f"{plants} plants with {src}: {done.stderr.strip()[-2000:]}")
     figures = json.loads(done.stdout.strip().splitlines()[-1])
     figures["process_seconds"] = time.perf_counter() - start
     return figures
+
+
+def measure_beside(
+    plants: int, small: int, seed: int, src: Path, changes: dict[str, Any]
+) -> tuple[dict[str, Any], np.ndarray]:
+    """The survey of `plants`, with the survey of `small` plants run over and over beside
+    it until it ends: its figures, and the step times (ms) of the small surveys that
+    finished meanwhile, taken at the same moments of the machine."""
+    with tempfile.TemporaryFile("w+") as lines:
+        command = child_command(small, seed, src, changes)
+        command["args"].append("--repeat")
+        beside = subprocess.Popen(**command, stdout=lines, stderr=subprocess.DEVNULL, text=True)
+        try:
+            figures = measure(plants, seed, src, changes)
+        finally:
+            beside.terminate()
+            beside.wait()
+        lines.seek(0)
+        rounds = [json.loads(line)["steps_ms"] for line in lines if line.startswith("{")]
+    if not rounds:
+        raise RuntimeError(f"no {small}-plant survey finished beside the {plants:,}-plant one")
+    return figures, np.concatenate(rounds)
 
 
 def slope_mb_per_plant(rows: list[dict[str, Any]], base_mb: float) -> float:
@@ -147,26 +181,41 @@ def table(name: str, rows: list[dict[str, Any]], base_mb: float) -> Table:
     return out
 
 
+def step_ratios(large: np.ndarray, small: np.ndarray) -> tuple[float, float]:
+    """Median and p95 step of `large` over those of `small`."""
+    return tuple(float(f(large) / f(small)) for f in (np.median, lambda ms: np.percentile(ms, 95)))
+
+
 def report(name: str, src: Path, sizes: list[int], seed: int, changes: dict[str, Any]) -> None:
     base = measure(BASELINE_PLANTS, seed, src, changes)["max_rss_mb"]
-    rows = []
-    for plants in sizes:
-        rows.append(measure(plants, seed, src, changes))
-        console.print(f"{name}: {plants:,} plants done in {rows[-1]['process_seconds']:.0f} s")
+    rows, beside = [measure(sizes[0], seed, src, changes)], None
+    for plants in sizes[1:]:
+        row, beside = measure_beside(plants, sizes[0], seed, src, changes)
+        rows.append(row)
+        console.print(f"{name}: {plants:,} plants done in {row['process_seconds']:.0f} s")
     again = measure(sizes[0], seed, src, changes) if len(sizes) > 1 else None
     console.print(table(name, rows + ([again] if again else []), base))
     slope = slope_mb_per_plant(rows, base)
     largest = rows[-1]
     million = (largest["max_rss_mb"] + slope * (TARGET_PLANTS - largest["plants"])) / 1024
+    large = np.asarray(largest["steps_ms"])
     smallest = np.concatenate([r["steps_ms"] for r in (rows[0], again) if r is not None])
-    ms = [smallest, np.asarray(largest["steps_ms"])]
-    ratio = [f(ms[1]) / f(ms[0]) for f in (np.median, lambda m: np.percentile(m, 95))]
+    before_after = step_ratios(large, smallest)
     console.print(
         f"{name}: slope {slope * 1024:.2f} KB per plant between the largest sizes (target <= 4); "
         f"{TARGET_PLANTS:,} plants -> about {million:.1f} GB max RSS; "
-        f"step median / p95 at {largest['plants']:,} vs {rows[0]['plants']:,} plants (both runs): "
-        f"{ratio[0]:.2f}x / {ratio[1]:.2f}x (target <= 1.5x); "
         f"max step {max(max(r['steps_ms']) for r in rows):.0f} ms at any size (target <= 100)"
+    )
+    ratios = f"{before_after[0]:.2f}x / {before_after[1]:.2f}x against its runs before and after"
+    if beside is not None:
+        paired = step_ratios(large, beside)
+        ratios += (
+            f", {paired[0]:.2f}x / {paired[1]:.2f}x against its {beside.size:,} steps beside it "
+            f"(median / p95 {np.median(beside):.1f} / {np.percentile(beside, 95):.1f} ms)"
+        )
+    console.print(
+        f"{name}: step median / p95 at {largest['plants']:,} vs {rows[0]['plants']:,} plants "
+        f"(target <= 1.5x): {ratios}"
     )
 
 
@@ -182,10 +231,13 @@ def main() -> None:
         "--set", type=json.loads, default={}, metavar="JSON", help="config changes (both runs)"
     )
     parser.add_argument("--child", type=int, help=argparse.SUPPRESS)
+    parser.add_argument("--repeat", action="store_true", help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.child is not None:
-        print(json.dumps(child(args.child, args.seed, args.set)))
-        return
+        while True:  # --repeat: over and over beside a larger survey, until it ends
+            print(json.dumps(child(args.child, args.seed, args.set)), flush=True)
+            if not args.repeat:
+                return
     sizes = sorted(set(args.sizes + ([100_000] if args.huge else [])))
     if args.set:
         console.print(f"NOT the default configuration: {json.dumps(args.set)}")
