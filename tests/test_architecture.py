@@ -29,6 +29,7 @@ CORE = [
     "association",
     "rejoin",
     "objects",
+    "index_upkeep",
     "maintenance",
     "range_outliers",
     "prior",

@@ -35,6 +35,7 @@ from agrislam.geometry.gnss import GnssFixes
 from agrislam.geometry.noise import SensorModel
 from agrislam.geometry.odometry import OdometryChain
 from agrislam.geometry.rows import RowTracker
+from agrislam.index_upkeep import IndexUpkeep
 from agrislam.maintenance import AfterFold, Existence, MaintenanceResult, Merger, prune_due
 from agrislam.objects import ObjectTable
 from agrislam.prior.backend import PriorBackend
@@ -98,7 +99,7 @@ class WorldModel:
         self.rows = RowTracker(self.config.rows) if self.config.rows.enabled else None
         self.index = SpatialIndex(self.association.index_margin, self.association.index_sweep_steps)
         self.objects.on_retire(self.index.forget)
-        self._steps_since_rebuild = self._index_refines = 0
+        self.index_upkeep = IndexUpkeep()
         self._after_fold, self.merger, self.outliers = AfterFold(), Merger(), RangeOutliers()
         self.depth_bias = DepthBiasEstimator(self.config.sensor.depth_bias)
         self.existence = Existence(self.config.maintenance)
@@ -278,7 +279,7 @@ class WorldModel:
                 self.backend.add_observation(robot, obj, measurement)
             folded = self.backend.update()
         with timer("index"):
-            self._refresh_index(seen)
+            self.index_upkeep.follow(self.index, seen, self.objects, self.backend, self.association)
         with timer("depth_bias"):
             self._calibrate_depth(robot, placed, object_ids)
         with timer("rows"):
@@ -563,29 +564,6 @@ class WorldModel:
     def _robot_index(self, name: str) -> int:
         """A robot's number, in the order robots were first heard of."""
         return list(self.robots).index(name)
-
-    def _refresh_index(self, touched: np.ndarray) -> None:
-        """Move the touched objects in the spatial index, read a slice of the others
-        again, and rebuild it now and then."""
-        touched = self.objects.active(touched)
-        if len(touched):
-            self.index.move(touched, self.backend.object_positions(touched))
-        if (refines := self.backend.refines) != self._index_refines:  # the map moved
-            whole, self._index_refines = self.backend.whole_refine > self._index_refines, refines
-            swept = self.active_ids() if whole else self._drifting()  # what it moved
-        else:
-            swept = self.objects.active(self.index.due(self._drifting))
-        if len(swept):
-            self.index.settle(swept, self.backend.object_positions(swept))
-        self._steps_since_rebuild += 1
-        cfg = self.association
-        if self._steps_since_rebuild >= cfg.index_rebuild_steps or self.index.n_fresh > 500:
-            self.index.rebuild()
-            self._steps_since_rebuild = 0
-
-    def _drifting(self) -> np.ndarray:
-        """The objects whose estimates may still move (not held on a frozen keyframe)."""
-        return np.setdiff1d(self.active_ids(), self.backend.settled_objects(), assume_unique=True)
 
     def _calibrate_depth(self, robot: str, placed: PlacedDetections, ids: np.ndarray) -> None:
         """Along-ray residuals of well-triangulated objects refine the depth bias."""
