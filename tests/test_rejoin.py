@@ -6,6 +6,7 @@ from collections import Counter
 import numpy as np
 
 from agrislam.association import PlacedDetections
+from agrislam.births import Births
 from agrislam.geometry import se2
 from agrislam.rejoin import LOST_WINDOW_S, REJOINED, Rejoiner
 from agrislam.spatial_index import SpatialIndex
@@ -35,14 +36,15 @@ def rejoin(landmarks: np.ndarray, believed: np.ndarray, seen: np.ndarray, object
     index = SpatialIndex()
     ids = np.arange(len(landmarks))
     index.move(ids, landmarks)
-    rejoiner = Rejoiner(index, Counter())
+    births = Births(LOST_WINDOW_S)
+    births.record(0.0, len(ids))
+    rejoiner = Rejoiner(index, births, Counter())
     rejoiner.gate_chi2 = 9.21
-    rejoiner.rejoin(believed[:2], _placed(seen[:0]), np.full(0, -1), 0.0, len(ids), None)
     c, s = np.cos(believed[2]), np.sin(believed[2])
     placed = _placed(se2.to_robot_frame(ROBOT, seen) @ np.array([[c, s], [-s, c]]) + believed[:2])
     object_ids = np.full(len(seen), -1) if object_ids is None else object_ids
     return rejoiner.rejoin(
-        believed[:2], placed, object_ids, LOST_WINDOW_S + 1.0, len(ids), Objects(landmarks)
+        believed[:2], placed, object_ids, LOST_WINDOW_S + 1.0, Objects(landmarks)
     ), rejoiner
 
 

@@ -88,6 +88,17 @@ class ObjectTable:
         return self.beliefs.last_update
 
     @property
+    def seen_by(self) -> np.ndarray:
+        """The robot (its index) that saw each object last, NO_ROBOT if none (n,)."""
+        return self._seen_by[: self._n]
+
+    @property
+    def seen_cov(self) -> np.ndarray:
+        """The covariance of each object's last detection (configured, zeros if never
+        seen) (n, 2, 2)."""
+        return self._seen_cov[: self._n]
+
+    @property
     def young(self) -> np.ndarray:
         """Objects the pruner still watches (n,), read-write for the pruner."""
         return self._young[: self._n]

@@ -18,13 +18,14 @@ pull the robot back.
 
 from __future__ import annotations
 
-from collections import Counter, deque
+from collections import Counter
 from typing import NamedTuple
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from agrislam.association import PlacedDetections
+from agrislam.births import Births
 from agrislam.geometry.backend import GraphBackend
 from agrislam.geometry.calibration import mahalanobis
 from agrislam.geometry.se2 import rotation, wrap_angle
@@ -41,17 +42,10 @@ REJOINED = "frames on which a lost robot rejoined the map (rejoin.py)"
 class Rejoiner:
     """Finds the correction that puts a lost robot's frame back on settled objects."""
 
-    def __init__(self, index: SpatialIndex, issues: Counter[str]) -> None:
-        self.index, self.issues = index, issues  # the run's issues count the frames rejoined
+    def __init__(self, index: SpatialIndex, births: Births, issues: Counter[str]) -> None:
+        self.index, self.births = index, births
+        self.issues = issues  # the run's issues count the frames rejoined
         self.gate_chi2: float | None = None  # the association's gate; None: off
-        self._started: deque[tuple[float, int]] = deque()  # (t, objects started by then)
-
-    def _settled_below(self, t: float, n_objects: int) -> int:
-        """Object ids below this were started more than LOST_WINDOW_S before `t`."""
-        self._started.append((t, n_objects))
-        while len(self._started) > 1 and self._started[1][0] <= t - LOST_WINDOW_S:
-            self._started.popleft()
-        return self._started[0][1] if self._started[0][0] <= t - LOST_WINDOW_S else 0
 
     def rejoin(
         self,
@@ -59,13 +53,12 @@ class Rejoiner:
         placed: PlacedDetections,
         object_ids: np.ndarray,  # (m,) the GNN's choice, -1 new
         t: float,
-        n_objects: int,  # objects started so far
         backend: GraphBackend,
     ) -> np.ndarray:
         """`object_ids` with the frame put back on settled objects, or as they were."""
         if self.gate_chi2 is None:
             return object_ids
-        settled = self._settled_below(t, n_objects)
+        settled = self.births.below(t - LOST_WINDOW_S)
         lost = np.flatnonzero((object_ids < 0) | (object_ids >= settled))
         if len(lost) < 2 or settled == 0:
             return object_ids

@@ -25,6 +25,7 @@ from agrislam.association import (
     landmark_association,
     max_association_distance,
 )
+from agrislam.births import Births
 from agrislam.config import AgrislamConfig, AssociationConfig, FieldSchema
 from agrislam.geometry import se2
 from agrislam.geometry.backend import make_backend
@@ -36,6 +37,7 @@ from agrislam.geometry.noise import SensorModel
 from agrislam.geometry.odometry import OdometryChain
 from agrislam.geometry.rows import RowTracker
 from agrislam.index_upkeep import IndexUpkeep
+from agrislam.loop_closure import RECENT_S, LoopCloser
 from agrislam.maintenance import AfterFold, Existence, MaintenanceResult, Merger, prune_due
 from agrislam.objects import ObjectTable
 from agrislam.prior.backend import PriorBackend
@@ -66,6 +68,8 @@ STAGES = (
     "rows",  # row fits and row constraints
     "maintain",  # merge and prune
 )
+# the parts `release` lets go of
+RELEASED = ("backend", "objects", "index", "rows", "robots", "existence", "rejoiner", "loops")
 
 
 @dataclass(slots=True)
@@ -105,7 +109,9 @@ class WorldModel:
         self.existence = Existence(self.config.maintenance)
         self.anchor = None
         self.issues: Counter[str] = self.backend.issues  # with what the back end isolated
-        self.rejoiner = Rejoiner(self.index, self.issues)
+        self.births = Births(RECENT_S)  # which objects are old (rejoin, loop closure)
+        self.rejoiner = Rejoiner(self.index, self.births, self.issues)
+        self.loops = LoopCloser(self.births, self.issues)
         self.robots: dict[str, OdometryChain] = {}
         self._field_prior: FieldPrior | None = None
         # the defaults that depend on the survey are chosen; the first sharpest sigmas (d_inter)
@@ -178,6 +184,7 @@ class WorldModel:
             self.objects.retire(gaps, STATUS_PRUNED)
         self.backend = PriorBackend(self.backend, prior.ids, prior.xy, prior.cov)
         self.index.rebuild(prior.ids, prior.xy)
+        self.births.record(-np.inf, len(self.objects))  # started in an earlier survey
 
     def _use_field_prior(self, prior: FieldPrior) -> None:
         """What the survey knows of its field, unless the run's config says otherwise."""
@@ -210,7 +217,9 @@ class WorldModel:
             return
         self._rows_off_by_default()
         self.merger.spare_together = self.outliers.enabled = True  # no plant spacing or rows
-        self.rejoiner.gate_chi2 = self.association.gate_chi2  # no repeating rows to mislead
+        # no repeating rows to mislead a lost or returning robot
+        self.rejoiner.gate_chi2 = self.loops.gate_chi2 = self.association.gate_chi2
+        self.loops.reach = 2.0 * self.association.d_inter  # the merger's company
         # landmarks seen now and then from far: no confirmation (it cost VP 41 of 114 trees)
         if "existence" not in (maintenance := self.config.maintenance).model_fields_set:
             self.existence = Existence(maintenance.model_copy(update={"existence": False}))
@@ -290,6 +299,9 @@ class WorldModel:
                 self.rows.after_step(self.backend, touched, len(detections), confirmed)
         with timer("maintain"):
             result = self._maintain(touched, t)
+            scale = float(self.noise.scale.variance[0])
+            loop = self.loops.pairs(self._robot_index(robot), t, self.objects, self.backend, scale)
+            result.merged += self._merge(loop)
             result.pruned += self._prune(self.objects.active(dropped).tolist())
         report = StepReport(t, robot, self.resolve(object_ids), new_ids, result, {})
         report.seconds = timer.close_step()
@@ -368,7 +380,7 @@ class WorldModel:
         chosen = assign(matrix)
         ids = np.where(chosen >= 0, candidates[np.maximum(chosen, 0)], -1)
         pose = self.backend.current_pose(robot)
-        return self.rejoiner.rejoin(pose[:2], placed, ids, t, len(self.objects), self.backend)
+        return self.rejoiner.rejoin(pose[:2], placed, ids, t, self.backend)
 
     def _reach(self, placed: PlacedDetections) -> float:
         """The farthest an object may be from a detection and still be associated."""
@@ -438,6 +450,7 @@ class WorldModel:
         for i, obj in zip(unassigned.tolist(), new_ids.tolist(), strict=True):
             self.backend.add_object(obj, placed.xy[i])
         object_ids[unassigned] = new_ids
+        self.births.record(t, len(self.objects))
         self.index.move(new_ids, placed.xy[unassigned])
         return new_ids
 
@@ -540,7 +553,7 @@ class WorldModel:
     def release(self) -> None:
         """The run's map is taken (`snapshot`): the solver, the index and the per-object
         state go, so that writing a whole field's outputs reuses their memory (issue 14)."""
-        for part in ("backend", "objects", "index", "rows", "robots", "existence", "rejoiner"):
+        for part in RELEASED:
             setattr(self, part, Released(part))
 
     # ----------------------------------------------------------------- helpers

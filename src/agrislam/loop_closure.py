@@ -1,0 +1,207 @@
+"""A robot that comes back to where it mapped long ago closes the loop (issue 11, not in
+the paper).
+
+When a robot returns after a long drive, its drift can be far past the association's
+gate (Victoria Park: tens of metres and a few tens of degrees after the first loop), and
+every object it sees then starts anew: the map holds the place twice and the loop never
+closes. rejoin.py takes back a frame that is off by a metre; this takes back a place.
+
+The robot's constellation is the objects started lately that it saw last, each seen in a
+few frames; the candidates are old objects not seen since the constellation began (one
+seen meanwhile stands apart from every object of the constellation). Pairs of the
+constellation with pairs of candidates as far apart each fix a rigid motion; the motions
+are voted on in bins, the best few are fitted to their matches and counted: the best,
+if it moves the constellation farther than association could, puts at least MIN_MATCHES
+of its objects on candidates (one to one, within the gate) and no distinct motion
+matches more than half as many, is taken: each matched new object merges into its old one
+(sec. 2.6.3), and the merged factors pull the drifted part of the map back.
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from collections.abc import Callable
+from typing import NamedTuple
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+from agrislam.births import Births
+from agrislam.geometry.backend import GraphBackend
+from agrislam.geometry.se2 import rotation, wrap_angle
+from agrislam.objects import ObjectTable
+from agrislam.snapshot import STATUS_ACTIVE
+
+RECENT_S = 300.0  # objects started this recently may form a robot's constellation
+MIN_FRAMES = 3  # frames an object was seen in before it counts (clutter is seen once)
+MIN_MATCHES = 5  # matched objects a loop needs
+MAX_CONSTELLATION = 20  # the newest objects of a constellation, no more
+MAX_CANDIDATES = 60  # the old objects nearest the constellation, no more
+FITS = 8  # the best bins fitted and counted
+SPACING_SIGMAS = 3.0  # two pairs are as far apart within this many sigmas
+CLOSED = "loops closed: a returning robot's new objects merged into old ones (loop_closure.py)"
+
+
+class _Fit(NamedTuple):
+    matched: int
+    cost: float
+    rows: np.ndarray  # matched objects of the constellation
+    cols: np.ndarray  # and their candidates
+    moved: np.ndarray  # (r, 2) the constellation under the motion
+
+
+class LoopCloser:
+    """Finds a returning robot's constellation among old objects."""
+
+    def __init__(self, births: Births, issues: Counter[str]) -> None:
+        self.births, self.issues = births, issues
+        self.gate_chi2: float | None = None  # the association's gate; None: off
+        self.reach = 0.0  # m a motion must move the constellation by, at least
+        self._checked: dict[int, int] = {}  # robot -> newest object of its last check
+
+    def pairs(
+        self,
+        robot: int,
+        t: float,
+        objects: ObjectTable,
+        backend: GraphBackend,
+        scale: float,
+    ) -> list[tuple[int, int]]:
+        """(old, new) objects to merge: the robot's constellation on old objects, or none;
+        `scale` is the calibrated detection variance's factor."""
+        if self.gate_chi2 is None:
+            return []
+        recent = self._constellation(robot, t, objects)
+        if len(recent) < MIN_MATCHES or recent[-1] == self._checked.get(robot):
+            return []
+        self._checked[robot] = int(recent[-1])
+        positions = backend.object_positions
+        old = self._candidates(int(recent[0]), objects, positions(recent).mean(axis=0), positions)
+        if len(old) < MIN_MATCHES:
+            return []
+        fit = self._fit(
+            positions(recent),
+            positions(old),
+            _variance(recent, objects, scale),
+            _variance(old, objects, scale),
+        )
+        if fit is None:
+            return []
+        self.issues[CLOSED] += 1
+        self._checked.pop(robot)
+        return [(int(old[c]), int(recent[r])) for r, c in zip(fit.rows, fit.cols, strict=True)]
+
+    def _constellation(self, robot: int, t: float, objects: ObjectTable) -> np.ndarray:
+        """Active objects started in the last RECENT_S, seen last by `robot`, in at least
+        MIN_FRAMES frames: the newest MAX_CONSTELLATION."""
+        first = self.births.below(t - RECENT_S)
+        ids = np.arange(first, len(objects))
+        n_frames = objects.n_frames[first:]
+        ok = (objects.status[first:] == STATUS_ACTIVE) & (n_frames >= MIN_FRAMES)
+        ok &= objects.seen_by[first:] == robot
+        return ids[ok][-MAX_CONSTELLATION:]
+
+    def _candidates(
+        self,
+        first: int,
+        objects: ObjectTable,
+        centre: np.ndarray,
+        positions: Callable[[np.ndarray], np.ndarray],
+    ) -> np.ndarray:
+        """Active objects older than the constellation (whose first is `first`), seen in
+        MIN_FRAMES frames and not since it began: the MAX_CANDIDATES nearest `centre`."""
+        ok = (objects.status[:first] == STATUS_ACTIVE) & (objects.n_frames[:first] >= MIN_FRAMES)
+        ok &= objects.last_update[:first] < self.births.started(first)
+        ids = np.flatnonzero(ok)
+        if len(ids) <= MAX_CANDIDATES:
+            return ids
+        far = np.linalg.norm(positions(ids) - centre, axis=1)
+        return np.sort(ids[np.argsort(far)[:MAX_CANDIDATES]])
+
+    def _fit(
+        self, new_xy: np.ndarray, old_xy: np.ndarray, new_var: np.ndarray, old_var: np.ndarray
+    ) -> _Fit | None:
+        """The motion of the constellation onto the candidates, if it is clear; `new_var`
+        and `old_var` (m^2 per axis) say how sure the objects' places are relative to
+        their neighbours."""
+        centre = new_xy.mean(axis=0)
+        new, old = new_xy - centre, old_xy - centre
+        variance = new_var[:, None] + old_var[None, :]  # of each (new, old) offset
+        sigma = float(np.sqrt(np.median(variance)))
+        motions = _pair_motions(new, old, SPACING_SIGMAS * np.sqrt(2.0) * sigma)
+        if len(motions) == 0:
+            return None
+        spread = max(float(np.linalg.norm(new, axis=1).max()), sigma)
+        fits = []
+        for motion in _top_bins(motions, sigma, sigma / spread, FITS):
+            fit = _count(motion, new, old, variance, self.gate_chi2)
+            for _ in range(2):  # refit the motion to its matches, count again
+                if fit.matched < 2:
+                    break
+                motion = _procrustes(new[fit.rows], old[fit.cols])
+                fit = _count(motion, new, old, variance, self.gate_chi2)
+            fits.append(fit)
+        fits.sort(key=lambda f: (-f.matched, f.cost))
+        best = fits[0]
+        if best.matched < MIN_MATCHES:
+            return None
+        if np.median(np.linalg.norm(best.moved - new, axis=1)[best.rows]) <= self.reach:
+            return None  # near enough for association and the merger
+        pairs = set(zip(best.rows.tolist(), best.cols.tolist(), strict=True))
+        for other in fits[1:]:
+            shared = len(pairs & set(zip(other.rows.tolist(), other.cols.tolist(), strict=True)))
+            if 2 * shared < other.matched and 2 * other.matched > best.matched:
+                return None  # another place fits about as well: not sure where it is
+        return best
+
+
+def _variance(ids: np.ndarray, objects: ObjectTable, scale: float) -> np.ndarray:
+    """(k,) m^2 per axis: how sure each object's place is among its neighbours, as its
+    detections averaged (their noise, `scale` its calibrated factor, over its frames)."""
+    detection = np.trace(objects.seen_cov[ids], axis1=1, axis2=2) * scale / 2.0
+    return detection / np.maximum(objects.n_frames[ids], 1)
+
+
+def _pair_motions(new: np.ndarray, old: np.ndarray, tolerance: float) -> np.ndarray:
+    """(h, 3) motions (dx, dy, dtheta; rotation about the origin first) that put a pair of
+    `new` points on an ordered pair of `old` points as far apart (within `tolerance`)."""
+    i, j = np.triu_indices(len(new), 1)
+    a, b = np.nonzero(~np.eye(len(old), dtype=bool))
+    seen, there = new[j] - new[i], old[b] - old[a]
+    gap = np.abs(np.linalg.norm(seen, axis=1)[:, None] - np.linalg.norm(there, axis=1)[None])
+    p, q = np.nonzero(gap <= tolerance)
+    seen, there = seen[p], there[q]
+    turn = wrap_angle(np.arctan2(there[:, 1], there[:, 0]) - np.arctan2(seen[:, 1], seen[:, 0]))
+    middle = 0.5 * (new[i[p]] + new[j[p]])
+    shift = 0.5 * (old[a[q]] + old[b[q]]) - np.einsum("kij,kj->ki", rotation(turn), middle)
+    return np.column_stack([shift, turn])
+
+
+def _top_bins(motions: np.ndarray, step_m: float, step_rad: float, n: int) -> np.ndarray:
+    """(<= n, 3) the mean motion of each of the n bins with the most votes."""
+    cells = np.floor(motions / np.array([step_m, step_m, step_rad])).astype(np.int64)
+    _, which, votes = np.unique(cells, axis=0, return_inverse=True, return_counts=True)
+    top = np.argsort(-votes, kind="stable")[:n]
+    which = which.reshape(-1)
+    return np.array([motions[which == k].mean(axis=0) for k in top])
+
+
+def _count(
+    motion: np.ndarray, new: np.ndarray, old: np.ndarray, variance: np.ndarray, gate_chi2: float
+) -> _Fit:
+    """The new points moved, matched one to one to old points within the gate (each
+    offset's `variance` per axis)."""
+    moved = new @ rotation(motion[2]).T + motion[:2]
+    cost = ((old[None, :, :] - moved[:, None, :]) ** 2).sum(axis=2) / variance
+    inside = cost <= gate_chi2
+    rows, cols = linear_sum_assignment(np.where(inside, cost, 1e6))
+    keep = inside[rows, cols]
+    rows, cols = rows[keep], cols[keep]
+    return _Fit(int(keep.sum()), float(cost[rows, cols].sum()), rows, cols, moved)
+
+
+def _procrustes(new: np.ndarray, old: np.ndarray) -> np.ndarray:
+    """(dx, dy, dtheta): the rigid motion that best puts `new` on `old` (least squares)."""
+    a, b = new - new.mean(axis=0), old - old.mean(axis=0)
+    turn = np.arctan2((a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]).sum(), (a * b).sum())
+    return np.r_[old.mean(axis=0) - rotation(turn) @ new.mean(axis=0), turn]
