@@ -3,8 +3,9 @@
 Records go in (from any source); the map comes out as a `MapSnapshot`. `step` takes a
 frame of detections of one robot and runs the pipeline: check the measurements, add the
 pose, place the detections, associate, update beliefs (each predicted to t first),
-optimise, follow in the spatial index, learn the depth bias, rows, maintain. Odometry
-between frames is kept in the robot's chain and composed into the frame's pose.
+optimise, follow in the spatial index, learn the depth bias, rows, maintain (merge, close
+a returning robot's loop, prune). Odometry between frames is kept in the robot's chain and
+composed into the frame's pose.
 """
 
 from __future__ import annotations
@@ -66,7 +67,7 @@ STAGES = (
     "index",  # the spatial index follows the objects the solve moved
     "depth_bias",  # the depth bias learned from this frame's residuals
     "rows",  # row fits and row constraints
-    "maintain",  # merge and prune
+    "maintain",  # merge (and close a returning robot's loop), prune
 )
 # the parts `release` lets go of
 RELEASED = ("backend", "objects", "index", "rows", "robots", "existence", "rejoiner", "loops")
@@ -213,13 +214,13 @@ class WorldModel:
         self._sharpest = np.r_[self._sharpest, np.sqrt(np.linalg.eigvalsh(cov)[:, 0])]
         self._settled = len(self._sharpest) >= D_INTER_SAMPLE
         self.association = landmark_association(self.association, configured, self._sharpest)
+        self.loops.reach = 2.0 * self.association.d_inter  # the merger's company
         if not first:
             return
         self._rows_off_by_default()
         self.merger.spare_together = self.outliers.enabled = True  # no plant spacing or rows
         # no repeating rows to mislead a lost or returning robot
         self.rejoiner.gate_chi2 = self.loops.gate_chi2 = self.association.gate_chi2
-        self.loops.reach = 2.0 * self.association.d_inter  # the merger's company
         # landmarks seen now and then from far: no confirmation (it cost VP 41 of 114 trees)
         if "existence" not in (maintenance := self.config.maintenance).model_fields_set:
             self.existence = Existence(maintenance.model_copy(update={"existence": False}))
