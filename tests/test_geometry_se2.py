@@ -70,3 +70,16 @@ def test_pose_uncertainty_is_the_jacobian_of_gtsams_tangent_squared():
     additive = se2.point_jacobian((se2.rotation(POSE[2]) @ POINTS.T).T)
     with pytest.raises(AssertionError):
         np.testing.assert_allclose(additive @ cov @ additive.transpose(0, 2, 1), got, rtol=1e-3)
+
+
+def test_pair_motions_find_the_motion_that_moved_a_pair():
+    new = np.array([[0.0, 0.0], [3.0, 1.0], [-2.0, 4.0]])
+    motion = np.array([5.0, -2.0, 0.4])
+    old = np.r_[se2.turned(new, motion[2]) + motion[:2], [[40.0, 40.0]]]
+    found = se2.pair_motions(new, old, 1e-6)
+    # each pair of new on its own pair of old, in either order (the other turned by pi)
+    assert len(found) == 6
+    right = np.all(np.isclose(found, motion, atol=1e-9), axis=1)
+    assert right.sum() == 3
+    np.testing.assert_allclose(np.abs(se2.wrap_angle(found[~right, 2] - motion[2])), np.pi)
+    np.testing.assert_allclose(se2.turned(new[1:2], np.pi / 2), [[-1.0, 3.0]], atol=1e-12)

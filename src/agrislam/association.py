@@ -173,6 +173,14 @@ def assign(matrix: np.ndarray) -> np.ndarray:
     return chosen
 
 
+def gated_matches(cost: np.ndarray, gate: float) -> tuple[np.ndarray, np.ndarray]:
+    """Rows and columns matched one to one at the least total `cost`, each within `gate`
+    (the GNN of `assign` over `cost / gate`)."""
+    chosen = assign(cost / gate)
+    rows = np.flatnonzero(chosen >= 0)
+    return rows, chosen[rows]
+
+
 def max_association_distance(
     d_inter: float, sigma_max: float, w_sem: float, n_measured: int
 ) -> float:

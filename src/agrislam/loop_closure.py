@@ -24,11 +24,11 @@ from collections.abc import Callable
 from typing import NamedTuple
 
 import numpy as np
-from scipy.optimize import linear_sum_assignment
 
+from agrislam.association import gated_matches
 from agrislam.births import Births
 from agrislam.geometry.backend import GraphBackend
-from agrislam.geometry.se2 import rotation, wrap_angle
+from agrislam.geometry.se2 import pair_motions, rotation, turned
 from agrislam.objects import ObjectTable
 from agrislam.snapshot import STATUS_ACTIVE
 
@@ -128,7 +128,7 @@ class LoopCloser:
         new, old = new_xy - centre, old_xy - centre
         variance = new_var[:, None] + old_var[None, :]  # of each (new, old) offset
         sigma = float(np.sqrt(np.median(variance)))
-        motions = _pair_motions(new, old, SPACING_SIGMAS * np.sqrt(2.0) * sigma)
+        motions = pair_motions(new, old, SPACING_SIGMAS * np.sqrt(2.0) * sigma)
         if len(motions) == 0:
             return None
         spread = max(float(np.linalg.norm(new, axis=1).max()), sigma)
@@ -162,21 +162,6 @@ def _variance(ids: np.ndarray, objects: ObjectTable, scale: float) -> np.ndarray
     return detection / np.maximum(objects.n_frames[ids], 1)
 
 
-def _pair_motions(new: np.ndarray, old: np.ndarray, tolerance: float) -> np.ndarray:
-    """(h, 3) motions (dx, dy, dtheta; rotation about the origin first) that put a pair of
-    `new` points on an ordered pair of `old` points as far apart (within `tolerance`)."""
-    i, j = np.triu_indices(len(new), 1)
-    a, b = np.nonzero(~np.eye(len(old), dtype=bool))
-    seen, there = new[j] - new[i], old[b] - old[a]
-    gap = np.abs(np.linalg.norm(seen, axis=1)[:, None] - np.linalg.norm(there, axis=1)[None])
-    p, q = np.nonzero(gap <= tolerance)
-    seen, there = seen[p], there[q]
-    turn = wrap_angle(np.arctan2(there[:, 1], there[:, 0]) - np.arctan2(seen[:, 1], seen[:, 0]))
-    middle = 0.5 * (new[i[p]] + new[j[p]])
-    shift = 0.5 * (old[a[q]] + old[b[q]]) - np.einsum("kij,kj->ki", rotation(turn), middle)
-    return np.column_stack([shift, turn])
-
-
 def _top_bins(motions: np.ndarray, step_m: float, step_rad: float, n: int) -> np.ndarray:
     """(<= n, 3) the mean motion of each of the n bins with the most votes."""
     cells = np.floor(motions / np.array([step_m, step_m, step_rad])).astype(np.int64)
@@ -191,13 +176,10 @@ def _count(
 ) -> _Fit:
     """The new points moved, matched one to one to old points within the gate (each
     offset's `variance` per axis)."""
-    moved = new @ rotation(motion[2]).T + motion[:2]
+    moved = turned(new, motion[2]) + motion[:2]
     cost = ((old[None, :, :] - moved[:, None, :]) ** 2).sum(axis=2) / variance
-    inside = cost <= gate_chi2
-    rows, cols = linear_sum_assignment(np.where(inside, cost, 1e6))
-    keep = inside[rows, cols]
-    rows, cols = rows[keep], cols[keep]
-    return _Fit(int(keep.sum()), float(cost[rows, cols].sum()), rows, cols, moved)
+    rows, cols = gated_matches(cost, gate_chi2)
+    return _Fit(len(rows), float(cost[rows, cols].sum()), rows, cols, moved)
 
 
 def _procrustes(new: np.ndarray, old: np.ndarray) -> np.ndarray:

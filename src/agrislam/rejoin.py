@@ -22,13 +22,12 @@ from collections import Counter
 from typing import NamedTuple
 
 import numpy as np
-from scipy.optimize import linear_sum_assignment
 
-from agrislam.association import PlacedDetections
+from agrislam.association import PlacedDetections, gated_matches
 from agrislam.births import Births
 from agrislam.geometry.backend import GraphBackend
 from agrislam.geometry.calibration import mahalanobis
-from agrislam.geometry.se2 import rotation, wrap_angle
+from agrislam.geometry.se2 import pair_motions, turned
 from agrislam.spatial_index import SpatialIndex
 
 LOST_WINDOW_S = 30.0  # objects started this recently are not settled
@@ -95,24 +94,15 @@ def _corrections(
     """(h, 3) corrections (dx, dy, dtheta), rotation about the robot first, that put a pair
     of the lost detections on a pair of objects as far apart, within the bounds."""
     i, j = np.triu_indices(len(lost), 1)
-    i, j = lost[i], lost[j]
-    a, b = np.nonzero(~np.eye(len(obj_xy), dtype=bool))
-    # every (detection pair, object pair): (p, q) flattened
-    di, dj = np.repeat(i, len(a)), np.repeat(j, len(a))
-    oa, ob = np.tile(a, len(i)), np.tile(b, len(i))
-    seen = det_xy[dj] - det_xy[di]
-    there = obj_xy[ob] - obj_xy[oa]
-    gap = np.linalg.norm(seen, axis=1)
+    seen = det_xy[lost[j]] - det_xy[lost[i]]
     # the spread of the detections' distance apart: both covariances along the line
-    u = seen / np.maximum(gap, 1e-9)[:, None]
-    spread = np.einsum("pi,pij,pj->p", u, det_cov[di] + det_cov[dj], u)
-    ok = np.abs(gap - np.linalg.norm(there, axis=1)) <= SPACING_SIGMAS * np.sqrt(spread)
-    turn = wrap_angle(np.arctan2(there[:, 1], there[:, 0]) - np.arctan2(seen[:, 1], seen[:, 0]))
-    ok &= np.abs(turn) <= MAX_TURN_RAD
-    turned = _turned(0.5 * (det_xy[di] + det_xy[dj]) - robot_xy, turn)
-    shift = 0.5 * (obj_xy[oa] + obj_xy[ob]) - (turned + robot_xy)
-    ok &= np.linalg.norm(shift, axis=1) <= MAX_SHIFT_M
-    return np.column_stack([shift, turn])[ok]
+    u = seen / np.maximum(np.linalg.norm(seen, axis=1), 1e-9)[:, None]
+    spread = np.einsum("pi,pij,pj->p", u, det_cov[lost[i]] + det_cov[lost[j]], u)
+    motions = pair_motions(
+        det_xy[lost] - robot_xy, obj_xy - robot_xy, SPACING_SIGMAS * np.sqrt(spread)
+    )
+    shift, turn = motions[:, :2], motions[:, 2]
+    return motions[(np.abs(turn) <= MAX_TURN_RAD) & (np.linalg.norm(shift, axis=1) <= MAX_SHIFT_M)]
 
 
 class _Fit(NamedTuple):
@@ -136,16 +126,13 @@ def _best(
     matches at least `needed` and no distinct correction matches as many."""
     fits = []
     for correction in corrections:
-        moved = _turned(det_xy - robot_xy, correction[2]) + robot_xy + correction[:2]
+        moved = turned(det_xy - robot_xy, correction[2]) + robot_xy + correction[:2]
         cost = mahalanobis(obj_xy[None, :, :] - moved[:, None, :], cov)
-        inside = cost <= gate_chi2
-        if inside.any(axis=1).sum() < needed:
+        if (cost <= gate_chi2).any(axis=1).sum() < needed:
             continue
-        rows, cols = linear_sum_assignment(np.where(inside, cost, 1e6))
-        keep = inside[rows, cols]
-        if keep.sum() >= needed:
-            total = float(cost[rows, cols][keep].sum())
-            fits.append(_Fit(int(keep.sum()), total, rows[keep], cols[keep], correction))
+        rows, cols = gated_matches(cost, gate_chi2)
+        if len(rows) >= needed:
+            fits.append(_Fit(len(rows), float(cost[rows, cols].sum()), rows, cols, correction))
     if not fits:
         return None
     fits.sort(key=lambda f: (-f.matched, f.cost))
@@ -157,8 +144,3 @@ def _best(
         if np.hypot(*apart[:2]) > DISTINCT[0] or abs(apart[2]) > DISTINCT[1]:
             return None  # two places fit as well: not sure where it is
     return top.rows, top.cols
-
-
-def _turned(xy: np.ndarray, turn: np.ndarray | float) -> np.ndarray:
-    """(p, 2) points turned about the origin by `turn` (one angle, or one per point)."""
-    return np.einsum("...ij,...j->...i", rotation(turn), xy)

@@ -19,6 +19,26 @@ def rotation(theta: float | np.ndarray) -> np.ndarray:
     return out
 
 
+def turned(xy: np.ndarray, theta: np.ndarray | float) -> np.ndarray:
+    """(p, 2) points turned about the origin by `theta` (one angle, or one per point)."""
+    return np.einsum("...ij,...j->...i", rotation(theta), xy)
+
+
+def pair_motions(new: np.ndarray, old: np.ndarray, tolerance: np.ndarray | float) -> np.ndarray:
+    """(h, 3) rigid motions (dx, dy, dtheta; the turn about the origin first) that put a
+    pair of `new` points on an ordered pair of `old` points as far apart, within
+    `tolerance` (one, or one per pair of `new` in `np.triu_indices` order)."""
+    i, j = np.triu_indices(len(new), 1)
+    a, b = np.nonzero(~np.eye(len(old), dtype=bool))
+    seen, there = new[j] - new[i], old[b] - old[a]
+    gap = np.abs(np.linalg.norm(seen, axis=1)[:, None] - np.linalg.norm(there, axis=1)[None])
+    p, q = np.nonzero(gap <= np.reshape(tolerance, (-1, 1)))
+    seen, there = seen[p], there[q]
+    turn = wrap_angle(np.arctan2(there[:, 1], there[:, 0]) - np.arctan2(seen[:, 1], seen[:, 0]))
+    shift = 0.5 * (old[a[q]] + old[b[q]]) - turned(0.5 * (new[i[p]] + new[j[p]]), turn)
+    return np.column_stack([shift, turn])
+
+
 def compose(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """a (+) b: the pose b, given in the frame of pose a, expressed in a's parent frame."""
     c, s = np.cos(a[2]), np.sin(a[2])
