@@ -13,6 +13,7 @@ from agrislam.config import AgrislamConfig, CalibrationConfig
 from agrislam.geometry import se2
 from agrislam.geometry.calibration import (
     FISHER_ITERATIONS,
+    PAIRS_A_CALL,
     Anchors,
     NoiseCalibration,
     NoiseScale,
@@ -125,6 +126,24 @@ def test_an_estimate_takes_an_iteration_a_call_and_ends_where_one_made_at_once_d
     np.testing.assert_array_equal(paced.scale.variance, expected)
     assert paced.updates == 1 and paced.pairs_used == at_once.pairs_used
     assert 1.0 < path[0] < path[-1]  # the scale moves up to the estimate step by step
+
+
+def test_an_iteration_over_more_pairs_than_a_call_sums_is_paced_and_ends_the_same():
+    rng = np.random.default_rng(5)
+    n = 2 * PAIRS_A_CALL + 500
+    d, comps = synthetic_pairs(rng, n, [1.0, 2.0, 2.0])
+    config = CalibrationConfig(min_pairs=200, update_every=n, max_pairs=n)
+    at_once = NoiseCalibration(config)
+    at_once._d[:], at_once._components[:], at_once.pairs_seen = d, comps, n
+    whole = at_once._start(np.ones(3))
+    assert whole.advance(n) and whole.done == 1  # one iteration in one part
+    paced = NoiseCalibration(config)
+    paced.add_pairs(d, comps)  # due: the first of three parts of the first iteration
+    assert paced.scale.variance.tolist() == [1.0, 1.0, 1.0]
+    paced.add_pairs(d[:1], comps[:1])
+    assert paced.scale.variance.tolist() == [1.0, 1.0, 1.0]
+    paced.add_pairs(d[1:2], comps[1:2])  # the third part ends the iteration
+    np.testing.assert_allclose(paced.scale.variance, at_once._factors(whole), rtol=1e-12)
 
 
 def test_only_the_latest_max_pairs_pairs_are_kept():

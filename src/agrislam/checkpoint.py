@@ -50,7 +50,7 @@ from agrislam.world import WorldModel
 # growing.Doubling; 7: geometry/marginal_cache.py, the factor store's rows in use alone;
 # 8: the world's maintenance.Merger; 9: the Merger's sets of objects detected together;
 # 10: the world's rejoin.Rejoiner)
-FORMAT = b"agrislam-checkpoint 11"
+FORMAT = b"agrislam-checkpoint 12"
 # the modules a checkpoint's objects may come from
 TRUSTED_MODULES = {"agrislam", "numpy", "collections", "copyreg", "builtins", "pydantic"}
 TRUSTED_MODULES |= {"pydantic_core", "scipy"}
