@@ -612,12 +612,12 @@ def test_a_fold_whose_objects_cannot_be_given_their_keyframe_gives_them_a_weak_c
     """Where a fold's deferred job cannot condition its objects on their keyframe (an object
     outside the keyframe's part of the graph, after a merge of objects far apart: Victoria
     Park, issue 11), they get FREE_SIGMA and an issue; the run goes on."""
-    import agrislam.geometry.incremental as incremental
+    import agrislam.geometry.conditioning as conditioning
 
     def outside(graph, point, keys):
         raise RuntimeError(f"objects {gtsam.DefaultKeyFormatter(keys[0])} are not in the graph")
 
-    monkeypatch.setattr(incremental, "marginal_covariances", outside)
+    monkeypatch.setattr(conditioning, "marginal_covariances", outside)
     g = make_backend(SlamConfig(window=5, refine_turn_deg=0.0), RowsConfig())
     line_survey(g)
     weak = g.issues["object given a weak covariance at a keyframe fold"]

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import pickle
 
+import gtsam
 import numpy as np
 
 from agrislam.geometry.marginal_cache import SETTLED, MarginalCache
@@ -61,3 +62,34 @@ def test_a_dropped_node_keeps_its_sightings_a_forgotten_one_does_not():
     cache.get(7, 2, 10, read)
     cache.measured([7])
     assert cache.held() == set()
+
+
+def test_the_reads_due_come_from_one_joint_marginal_equal_to_each_read_alone():
+    # a real iSAM2: a pose chain seeing three points
+    isam, graph, values = gtsam.ISAM2(), gtsam.NonlinearFactorGraph(), gtsam.Values()
+    x, points = [gtsam.symbol("x", i) for i in range(3)], [gtsam.symbol("l", i) for i in range(3)]
+    noise = gtsam.noiseModel.Isotropic.Sigma(3, 0.1)
+    graph.add(gtsam.PriorFactorPose2(x[0], gtsam.Pose2(), noise))
+    for i in range(3):
+        values.insert(x[i], gtsam.Pose2(i, 0, 0))
+        values.insert(points[i], gtsam.Point2(i, 1))
+        if i:
+            graph.add(gtsam.BetweenFactorPose2(x[i - 1], x[i], gtsam.Pose2(1, 0, 0), noise))
+        for j in range(3):
+            bearing = gtsam.Rot2.fromAngle(np.arctan2(1.0, j - i))
+            sensed = gtsam.noiseModel.Diagonal.Sigmas([0.01, 0.1])
+            graph.add(
+                gtsam.BearingRangeFactor2D(x[i], points[j], bearing, np.hypot(1, j - i), sensed)
+            )
+    isam.update(graph, values)
+    cache, read = MarginalCache(), Reads()
+    cache.get(points[0], 0, 10, read)  # still fresh: not read again
+    cache.read_jointly([points[0], points[1], points[2], points[1], x[2]], 1, 10, isam)
+    for key in (points[1], points[2], x[2]):
+        assert cache.read_at(key) == 1
+        np.testing.assert_allclose(
+            cache.get(key, 2, 10, read), isam.marginalCovariance(key), rtol=1e-9, atol=1e-12
+        )
+    assert read.count == 1 and cache.read_at(points[0]) == 0
+    cache.read_jointly([points[0]], 10, 10, isam)  # one due: read alone, by `get`
+    assert cache.read_at(points[0]) == 0

@@ -19,6 +19,7 @@ from threadpoolctl import ThreadpoolController
 
 from agrislam.geometry.batch import insert_value, value_array
 from agrislam.geometry.graph import POSE, key_kind
+from agrislam.geometry.se2 import rotation
 
 T = TypeVar("T")
 _BLAS = ThreadpoolController()
@@ -179,6 +180,33 @@ def marginalised(
 
     remaining = isolating(eliminated, graph, point, issues, "a keyframe fold")
     return gtsam.LinearContainerFactor.ConvertLinearGraph(remaining, kept)
+
+
+def covariances_given(
+    keyframe: int,
+    keys: list[int],
+    parts: Callable[[], dict[int, tuple[gtsam.NonlinearFactorGraph, set[int]]]],
+    point: gtsam.Values,
+    blanket: list[int],
+    issues: Counter[str],
+) -> list[np.ndarray]:
+    """Covariances of objects `keys` given `keyframe` in its frame, from the part of the
+    graph around connected to it (`parts()[keyframe]`, `components`); failing that,
+    FREE_SIGMA wide (a keyframe fold, geometry/incremental.py)."""
+    local, nodes = parts()[keyframe]
+    free = [k for k in blanket if k in nodes]
+
+    def covariances(graph: gtsam.NonlinearFactorGraph) -> list[np.ndarray]:
+        return marginal_covariances(graph, point, keys)
+
+    graph = conditioned(local, point, keyframe, free)
+    try:
+        covs = isolating(covariances, graph, point, issues, "a keyframe fold")
+    except RuntimeError:
+        issues["object given a weak covariance at a keyframe fold"] += len(keys)
+        return [np.eye(2) * FREE_SIGMA**2 for _ in keys]
+    rot = rotation(value_array(point, keyframe)[2])
+    return [rot.T @ cov @ rot for cov in covs]
 
 
 def components(

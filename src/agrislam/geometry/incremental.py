@@ -28,7 +28,6 @@ from __future__ import annotations
 
 import functools
 import math
-from collections.abc import Callable
 
 import gtsam
 import numpy as np
@@ -37,12 +36,10 @@ from agrislam.config import RowsConfig, SlamConfig
 from agrislam.geometry.base import BackendBase, pose_array
 from agrislam.geometry.batch import insert_value, solve, value_array, values_at
 from agrislam.geometry.conditioning import (
-    FREE_SIGMA,
     components,
     conditioned,
+    covariances_given,
     indeterminate_key,
-    isolating,
-    marginal_covariances,
     marginalised,
     shared_copy,
 )
@@ -406,33 +403,10 @@ class IncrementalBackend(BackendBase):
                 z = to_robot_frame(kf_pose, value_array(point, key))
                 self._retired_objects.put(key, keyframe, z, cov=np.full((2, 2), np.nan))
             # the covariances (most of a fold's work) are computed a step later (issue 14)
-            given = functools.partial(self._given, keyframe, keys, parts, point, blanket)
+            given = functools.partial(
+                covariances_given, keyframe, keys, parts, point, blanket, self.issues
+            )
             self._retired_objects.defer(keys, given)
-
-    def _given(
-        self,
-        keyframe: int,
-        keys: list[int],
-        parts: Callable[[], dict[int, tuple[gtsam.NonlinearFactorGraph, set[int]]]],
-        point: gtsam.Values,
-        blanket: list[int],
-    ) -> list[np.ndarray]:
-        """Covariances of objects `keys` given `keyframe` in its frame, from the part of the
-        graph around connected to it (`parts()[keyframe]`); failing that, FREE_SIGMA wide."""
-        local, nodes = parts()[keyframe]
-        free = [k for k in blanket if k in nodes]
-
-        def covariances(graph: gtsam.NonlinearFactorGraph) -> list[np.ndarray]:
-            return marginal_covariances(graph, point, keys)
-
-        graph = conditioned(local, point, keyframe, free)
-        try:
-            covs = isolating(covariances, graph, point, self.issues, "a keyframe fold")
-        except RuntimeError:
-            self.issues["object given a weak covariance at a keyframe fold"] += len(keys)
-            return [np.eye(2) * FREE_SIGMA**2 for _ in keys]
-        rot = rotation(value_array(point, keyframe)[2])
-        return [rot.T @ cov @ rot for cov in covs]
 
     def refine(self, max_factors: int | None = None, max_keys: int = 0) -> None:
         """Solve the whole recorded graph (batch, warm-started from the current estimates)
@@ -535,8 +509,11 @@ class IncrementalBackend(BackendBase):
         (geometry/marginal_cache.py)."""
         if (frozen := self._frozen.covariance(key)) is not None:
             return frozen
-        reuse = self.slam.covariance_reuse_steps * max(len(self.graph.robots), 1)
-        return self._marginals.get(key, self._step, reuse, self._isam.marginalCovariance)
+        return self._marginals.get(key, self._step, self._reuse, self._isam.marginalCovariance)
+
+    @property
+    def _reuse(self) -> int:
+        return self.slam.covariance_reuse_steps * max(len(self.graph.robots), 1)
 
     def _frames(self, keyframes: np.ndarray) -> np.ndarray:
         """(k, 3) current pose of each of `keyframes`, each distinct one read once."""
@@ -585,10 +562,13 @@ class IncrementalBackend(BackendBase):
         for key in live:
             if key in self._guess:
                 raise ValueError(f"object {key_index(key)} has no observation yet")
+        keyframes = self._retired_objects.keyframes[rows]
+        in_isam = [k for k in live + keyframes.tolist() if k not in self._frozen]
+        self._marginals.read_jointly(in_isam, self._step, self._reuse, self._isam)
         out[~retired] = np.array([self._marginal_covariance(k) for k in live]).reshape(-1, 2, 2)
         if len(rows):
             objects = self._retired_objects
-            keyframes, z = objects.keyframes[rows], objects.local[rows]
+            z = objects.local[rows]
             frames = self._frames(keyframes)
             cov_k = np.stack(per_distinct(keyframes, self._marginal_covariance))
             rot = rotation(frames[:, 2])  # l = K (+) z: the keyframe's part and z's
