@@ -104,7 +104,8 @@ class Scoring:
         """The iteration under way over its next `pairs` pairs: an EM step of their inlier
         weights and their part of the Fisher step; True when that ended the iteration."""
         part = slice(self._at, self._at + pairs)
-        entries, (x, y) = self.entries[..., part], self.d[:, part]
+        entries, d = self.entries[..., part], self.d[:, part]
+        x, y = d
         s_a, s_b, s_c = self.v @ entries  # S = sum_c v_c A_c
         det = s_a * s_c - s_b * s_b
         inverse = (s_c / det, -s_b / det, s_a / det)
@@ -112,7 +113,7 @@ class Scoring:
         density = np.exp(-0.5 * quadratic) / (2 * np.pi * np.sqrt(det))
         inlier = self.inlier_share * density
         weight = inlier / (inlier + (1.0 - self.inlier_share) * self.outlier_density)
-        score, information = fisher_terms(self.d[:, part], entries, inverse, weight)
+        score, information = fisher_terms(d, entries, inverse, weight)
         sums = (weight.sum(), score, information)
         self._sums = tuple(a + b for a, b in zip(self._sums, sums, strict=True))
         self._at += pairs
