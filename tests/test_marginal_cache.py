@@ -8,7 +8,7 @@ import pickle
 import gtsam
 import numpy as np
 
-from agrislam.geometry.marginal_cache import SETTLED, MarginalCache
+from agrislam.geometry.marginal_cache import SETTLED, STALE, MarginalCache
 
 
 class Reads:
@@ -22,11 +22,24 @@ class Reads:
         return np.eye(2) * self.count
 
 
-def test_a_covariance_serves_its_reuse_steps_then_is_read_again():
+def test_an_objects_covariance_serves_its_reuse_steps_then_is_read_again():
     cache, read = MarginalCache(), Reads()
+    cache.sighted(7)
     first = cache.get(7, 0, 3, read)
     assert cache.get(7, 2, 3, read) is first and read.count == 1 and cache.read_at(7) == 0
     assert cache.get(7, 3, 3, read)[0, 0] == 2.0 and cache.read_at(7) == 3
+
+
+def test_a_poses_covariance_serves_stale_times_as_long_unless_a_factor_joins_it():
+    cache, read = MarginalCache(), Reads()
+    cache.get(99, 0, 3, read)  # a keyframe: never sighted
+    cache.get(99, STALE * 3 - 1, 3, read)
+    assert read.count == 1
+    cache.measured([99])  # a fold's factor on it
+    cache.get(99, STALE * 3 - 1, 3, read)
+    assert read.count == 2 and cache.read_at(99) == STALE * 3 - 1
+    cache.get(99, 2 * STALE * 3 - 1, 3, read)
+    assert read.count == 3
 
 
 def test_a_new_factor_calls_for_a_fresh_read_until_the_object_is_settled():

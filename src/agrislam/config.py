@@ -408,8 +408,8 @@ class SlamConfig(_Strict):
         10,
         ge=1,
         description="an object's marginal covariance read for association serves this many "
-        "steps of each robot (each read is a Bayes-tree traversal; a frame's candidates each "
-        "needed one, issue 11); 1 = read every step",
+        "steps of each robot, a keyframe's ten times as many (each read is a Bayes-tree "
+        "traversal, geometry/marginal_cache.py); 1 = read every step",
     )
     refine_turn_deg: float = Field(
         3.0,
