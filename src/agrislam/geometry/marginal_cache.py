@@ -53,8 +53,10 @@ class MarginalCache:
 
     def _due(self, key: int, step: int, reuse: int) -> bool:
         cached = self._read.get(key)
+        if cached is None:
+            return True
         serves = reuse if self._sightings.get(key, 0) else STALE * reuse  # an object, a pose
-        return cached is None or step - cached[0] >= serves
+        return step - cached[0] >= serves
 
     def held(self) -> set[int]:
         """The keys whose covariance is kept."""
