@@ -1,5 +1,6 @@
 """Marginal covariances kept for association (geometry/marginal_cache.py): read again
-after their reuse, or after a new factor, unless the object is settled."""
+after their reuse (ten times as long for a node without a new factor since), or after a
+new factor, unless the object is settled."""
 
 from __future__ import annotations
 
@@ -22,24 +23,29 @@ class Reads:
         return np.eye(2) * self.count
 
 
-def test_an_objects_covariance_serves_its_reuse_steps_then_is_read_again():
+def test_a_seen_objects_covariance_serves_its_reuse_steps_then_is_read_again():
     cache, read = MarginalCache(), Reads()
     cache.sighted(7)
     first = cache.get(7, 0, 3, read)
+    cache.sighted(7)  # seen since the read (a young object's is read again on measured)
     assert cache.get(7, 2, 3, read) is first and read.count == 1 and cache.read_at(7) == 0
     assert cache.get(7, 3, 3, read)[0, 0] == 2.0 and cache.read_at(7) == 3
 
 
-def test_a_poses_covariance_serves_stale_times_as_long_unless_a_factor_joins_it():
+def test_a_covariance_with_no_new_factor_serves_stale_times_as_long():
     cache, read = MarginalCache(), Reads()
-    cache.get(99, 0, 3, read)  # a keyframe: never sighted
+    for _ in range(SETTLED + 1):
+        cache.sighted(7)  # a settled object, out of sight after its read
+    for key in (7, 99):  # 99: a keyframe, never sighted
+        cache.get(key, 0, 3, read)
+        cache.get(key, STALE * 3 - 1, 3, read)
+    assert read.count == 2
+    cache.measured([99])  # a fold's factor on the keyframe: read again at once
     cache.get(99, STALE * 3 - 1, 3, read)
-    assert read.count == 1
-    cache.measured([99])  # a fold's factor on it
-    cache.get(99, STALE * 3 - 1, 3, read)
-    assert read.count == 2 and cache.read_at(99) == STALE * 3 - 1
+    assert read.count == 3 and cache.read_at(99) == STALE * 3 - 1
+    cache.get(7, STALE * 3, 3, read)
     cache.get(99, 2 * STALE * 3 - 1, 3, read)
-    assert read.count == 3
+    assert read.count == 5 and cache.read_at(7) == STALE * 3
 
 
 def test_a_new_factor_calls_for_a_fresh_read_until_the_object_is_settled():
@@ -104,5 +110,6 @@ def test_the_reads_due_come_from_one_joint_marginal_equal_to_each_read_alone():
             cache.get(key, 2, 10, read), isam.marginalCovariance(key), rtol=1e-9, atol=1e-12
         )
     assert read.count == 1 and cache.read_at(points[0]) == 0
+    cache.sighted(points[0])
     cache.read_jointly([points[0]], 10, 10, isam)  # one due: read alone, by `get`
     assert cache.read_at(points[0]) == 0

@@ -407,9 +407,9 @@ class SlamConfig(_Strict):
     covariance_reuse_steps: int = Field(
         10,
         ge=1,
-        description="an object's marginal covariance read for association serves this many "
-        "steps of each robot, a keyframe's ten times as many (each read is a Bayes-tree "
-        "traversal, geometry/marginal_cache.py); 1 = read every step",
+        description="a marginal covariance read for association serves this many steps of "
+        "each robot if its object was seen since, ten times as many if not (each read is a "
+        "Bayes-tree traversal, geometry/marginal_cache.py); 1 = read each step it is seen",
     )
     refine_turn_deg: float = Field(
         3.0,

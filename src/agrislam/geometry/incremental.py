@@ -503,10 +503,10 @@ class IncrementalBackend(BackendBase):
 
     def _marginal_covariance(self, key: int) -> np.ndarray:
         """A node's marginal covariance, read again from iSAM2 (a Bayes-tree traversal)
-        once each robot has taken `slam.covariance_reuse_steps` steps since it was read (a
-        pose: ten times as many; robots share the step count: five reading every ten steps
-        would each read every other frame, a cost growing with the robots, issue 11) or a
-        new factor touched it (geometry/marginal_cache.py)."""
+        once each robot has taken `slam.covariance_reuse_steps` steps since it was read
+        (ten times as many for a pose or an object not seen since; robots share the step
+        count: five reading every ten steps would each read every other frame, a cost
+        growing with the robots, issue 11) or a new factor touched it (marginal_cache.py)."""
         if (frozen := self._frozen.covariance(key)) is not None:
             return frozen
         return self._marginals.get(key, self._step, self._reuse, self._isam.marginalCovariance)

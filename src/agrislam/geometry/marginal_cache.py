@@ -2,15 +2,15 @@
 is a Bayes-tree traversal, and a frame reads one for each of its candidates (issue 11:
 a quarter of a run's time when every read was fresh).
 
-A covariance serves `reuse` steps, then is read again. A new factor on a node makes it
-read again sooner, except on an object already seen `SETTLED` times: one more sighting
-shrinks its covariance by about a `SETTLED + 1`-th, less than the steps of reuse already
-let it change, and such re-sightings were three quarters of the reads at 10,000 plants.
-A pose's covariance (a keyframe's, for the objects retired onto it) serves `STALE` times
-as long, unless a new factor joins it: read again every `reuse` steps, keyframes made few
-of the reads at 10,000 plants but the dearest (4.2 ms a frame where they were due, 1.2 on
-average), since an old keyframe sits deep in the Bayes tree (issue 14). An older
-covariance only overstates the uncertainty (the gate is the wider for it)."""
+A covariance serves `reuse` steps if a detection has joined its object since the read,
+`STALE` times as long otherwise: a node without a factor of its own changes only through
+its neighbours (a robot's drift, a loop), and an older covariance only overstates the
+uncertainty (the gate is the wider for it). Keyframes (read for the objects retired onto
+them) and objects out of sight, read again every `reuse` steps, were few of the reads at
+10,000 plants but the dearest, deep in the Bayes tree (issue 14). A new factor makes a
+node read again at once, except on an object already seen `SETTLED` times: one more
+sighting shrinks its covariance by about a `SETTLED + 1`-th, and such re-sightings were
+three quarters of the reads at 10,000 plants."""
 
 from __future__ import annotations
 
@@ -22,14 +22,15 @@ import numpy as np
 from agrislam.geometry.key_table import KeyTable
 
 SETTLED = 5  # sightings after which one more does not call for a fresh read
-STALE = 10  # a pose's covariance serves STALE x `reuse` steps (no new factor on it)
+STALE = 10  # a covariance with no new factor on its node serves STALE x `reuse` steps
 
 
 class MarginalCache:
     """key -> the marginal covariance last read, with the step it was read at."""
 
     def __init__(self) -> None:
-        self._read: dict[int, tuple[int, np.ndarray]] = {}  # live nodes' only
+        # live nodes' only: the step read at, the covariance, the node's sightings then
+        self._read: dict[int, tuple[int, np.ndarray, int]] = {}
         self._sightings = KeyTable()  # object key -> detections so far
 
     def __getstate__(self) -> dict[str, object]:
@@ -37,9 +38,9 @@ class MarginalCache:
         return {"_read": {}, "_sightings": self._sightings}
 
     def get(self, key: int, step: int, reuse: int, read: Callable[[int], np.ndarray]) -> np.ndarray:
-        """The covariance of `key` as read at most `reuse` steps ago (else `read` now)."""
+        """The covariance of `key` as last read, or from `read` now if it is due."""
         if self._due(key, step, reuse):
-            self._read[key] = (step, read(key))
+            self._read[key] = (step, read(key), self._sightings.get(key, 0))
         return self._read[key][1]
 
     def read_jointly(self, keys: list[int], step: int, reuse: int, isam: gtsam.ISAM2) -> None:
@@ -49,14 +50,16 @@ class MarginalCache:
         due = list(dict.fromkeys(key for key in keys if self._due(key, step, reuse)))
         if len(due) > 1:
             joint = isam.jointMarginalCovariance(due)
-            self._read.update((key, (step, joint.at(key, key))) for key in due)
+            seen = self._sightings.get
+            self._read.update((key, (step, joint.at(key, key), seen(key, 0))) for key in due)
 
     def _due(self, key: int, step: int, reuse: int) -> bool:
         cached = self._read.get(key)
         if cached is None:
             return True
-        serves = reuse if self._sightings.get(key, 0) else STALE * reuse  # an object, a pose
-        return step - cached[0] >= serves
+        read_at, _, seen = cached
+        sighted = self._sightings.get(key, 0) > seen  # since the read (a pose: never)
+        return step - read_at >= (reuse if sighted else STALE * reuse)
 
     def held(self) -> set[int]:
         """The keys whose covariance is kept."""
