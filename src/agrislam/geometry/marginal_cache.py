@@ -26,7 +26,7 @@ STALE = 10  # a covariance with no new factor on its node serves STALE x `reuse`
 
 
 class MarginalCache:
-    """key -> the marginal covariance last read, with the step it was read at."""
+    """key -> the marginal covariance last read, with the step and the sightings then."""
 
     def __init__(self) -> None:
         # live nodes' only: the step read at, the covariance, the node's sightings then
