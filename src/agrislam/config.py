@@ -18,7 +18,7 @@ import yaml
 from pydantic import BaseModel, ConfigDict, Field, PositiveFloat, model_validator
 
 from agrislam.gnss_config import GnssConfig
-from agrislam.limits import InputLimits
+from agrislam.limits import InputLimits, first_error
 from agrislam.limits import StrictModel as _Strict
 from agrislam.season_config import SeasonConfig
 
@@ -161,17 +161,6 @@ class FieldSchema(_Strict):
             raise ValueError(
                 f"unknown schema preset {name!r}; known: {', '.join(sorted(SCHEMA_PRESETS))}"
             ) from None
-
-
-def first_error(err: ValueError) -> str:
-    """The first error of a pydantic ValidationError as 'where: what' (else the text)."""
-    errors = getattr(err, "errors", None)
-    if callable(errors):
-        first = errors()[0]
-        where = ".".join(str(p) for p in first.get("loc", ()))
-        msg = str(first.get("msg", err)).removeprefix("Value error, ")
-        return f"{where}: {msg}" if where else msg
-    return str(err)
 
 
 COLOURS = ["blue", "cyan", "green", "orange", "pink", "red", "yellow"]

@@ -1,5 +1,6 @@
-"""The base of every configuration model, and the bounds of what a source accepts from a
-record (`InputLimits`, the config's `sensor.limits`; sources/validate.py applies them)."""
+"""The base of every configuration model and its errors as 'where: what', and the bounds
+of what a source accepts from a record (`InputLimits`, the config's `sensor.limits`;
+sources/validate.py applies them)."""
 
 from __future__ import annotations
 
@@ -11,6 +12,17 @@ class StrictModel(BaseModel):
 
     # NaN or infinity in a setting is a mistake, never a value (a NaN gate accepts nothing)
     model_config = ConfigDict(extra="forbid", validate_assignment=True, allow_inf_nan=False)
+
+
+def first_error(err: ValueError) -> str:
+    """The first error of a pydantic ValidationError as 'where: what' (else the text)."""
+    errors = getattr(err, "errors", None)
+    if callable(errors):
+        first = errors()[0]
+        where = ".".join(str(p) for p in first.get("loc", ()))
+        msg = str(first.get("msg", err)).removeprefix("Value error, ")
+        return f"{where}: {msg}" if where else msg
+    return str(err)
 
 
 class InputLimits(StrictModel):

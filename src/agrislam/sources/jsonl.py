@@ -26,8 +26,8 @@ from agrislam.config import (
     FieldSchema,
     InputLimits,
     SensorDefaults,
-    first_error,
 )
+from agrislam.limits import first_error
 from agrislam.records import (
     Anchor,
     ContinuousMeasurement,
