@@ -524,6 +524,23 @@ def test_a_new_poses_covariance_carried_through_its_odometry_is_isam2s(window):
         np.testing.assert_allclose(carried, solved, rtol=1e-9, atol=1e-12)
 
 
+@pytest.mark.parametrize("kept, per_robot", [(100, 3), (3, 30)])
+def test_a_robot_keeps_the_smaller_of_its_share_and_keyframes_per_robot(
+    small_survey, kept, per_robot
+):
+    """A lone robot's 100 keyframes made a keyframe's marginal read ten times dearer than
+    its 30 at 10,000 plants (issue 14): `slam.keyframes_per_robot` caps its share."""
+    b, survey = small_survey
+    slam = SlamConfig(window=10, keyframes_kept=kept, keyframes_per_robot=per_robot)
+    g = make_backend(slam, RowsConfig())
+    _, _, complete, _ = b.drive(g, survey, None, float("inf"))
+    assert complete and g.rolls > 5
+    assert [len(frames) for frames in g._keyframes.values()] == [4]  # the first and newest 3
+    assert len(g._frozen) == g.rolls + 1 - 4  # each other keyframe aged, held where it stood
+    with pytest.raises(ValueError, match="keyframes_per_robot"):
+        SlamConfig(keyframes_per_robot=0)
+
+
 def test_a_graph_above_the_batch_limit_refines_its_folded_keyframe_graph(small_survey):
     """refine() past `refine_max_factors`: no batch over the whole record (its memory grows
     with the field), the keyframe graph is relinearised instead; the map stays close to

@@ -388,10 +388,16 @@ class SlamConfig(_Strict):
     keyframes_kept: int = Field(
         100,
         ge=0,
-        description="keyframes the graph keeps, shared equally by the robots; older ones are "
-        "folded away and held where they stand, with what hangs on them, so the graph stays "
-        "bounded however long the survey (a loop longer than this localises against the old "
-        "map); 0 = every keyframe stays",
+        description="keyframes the graph keeps, shared equally by the robots (at most "
+        "`keyframes_per_robot` each); older ones are folded away and held where they stand, "
+        "with what hangs on them, so the graph stays bounded however long the survey (a loop "
+        "longer than this localises against the old map); 0 = every keyframe stays",
+    )
+    keyframes_per_robot: int = Field(
+        30,
+        ge=1,
+        description="the most keyframes one robot keeps: the kept keyframes are tied together "
+        "in the Bayes tree's top clique, which every marginal read for association goes through",
     )
     covariance_reuse_steps: int = Field(
         10,
