@@ -6,6 +6,7 @@ cluttered one must stay clean, a clean one must confirm its plants early."""
 import numpy as np
 import pytest
 
+from agrislam import maintenance
 from agrislam.config import AgrislamConfig, MaintenanceConfig, SensorDefaults
 from agrislam.geometry.noise import SensorModel
 from agrislam.geometry.view_area import ViewArea, in_robot_frames, log_odds_absent
@@ -129,6 +130,19 @@ def test_only_objects_still_tentative_face_the_end_of_survey_test():
     poses = [np.tile([[-1.5, 0.0, 0.0]], (10, 1))]  # ten frames, every object in view
     assert existence.absent(np.arange(42), at_origin, objects, poses) == [41]
     assert existence.pruned == 1 and existence.stats["p_detect"] == pytest.approx(0.9)
+
+
+def test_the_rates_are_learned_from_the_newest_objects(monkeypatch):
+    """An EM over every object of a 100,000-plant field, every RELEARN_FRAMES frames, cost
+    1 ms of the p95 step (issue 14): the rates are the LEARN_RECENT newest objects'."""
+    monkeypatch.setattr(maintenance, "LEARN_RECENT", 40)
+    objects = _table(100)
+    objects.views[:] = 10
+    _seen(objects, np.repeat(np.arange(60), 5))  # the older: 5 of 10 frames
+    _seen(objects, np.repeat(np.arange(60, 100), 9))  # the newest 40: 9 of 10
+    existence = Existence(MaintenanceConfig())
+    existence.learn(objects)
+    assert existence.learned and existence.stats["p_detect"] == pytest.approx(0.9)
 
 
 def test_existence_keeps_a_clean_map_and_finds_the_clutter():
