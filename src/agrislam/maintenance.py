@@ -42,16 +42,16 @@ EM_ROUNDS = 10
 RELEARN_FRAMES = 20  # frames between the rates learned again during a survey
 LEARN_VIEWS = 3  # frames in view an object's counts need to teach the rates
 LEARN_OBJECTS = 10  # such objects before the survey's own rates are used
-# the newest such objects the rates are learned from: the survey's present light and
-# growth, at a cost that does not grow with the field (issue 14: all 100,000 plants' EM
-# every RELEARN_FRAMES frames cost 1 ms of the p95 step)
-LEARN_RECENT = 5_000
 # the rates before then (the first frames: they are learned every frame until there are
 # enough objects): a detector's recall, and a new object as likely clutter as a plant,
 # so that three sightings in three frames confirm it (measured: a share of 0.17, two
 # sightings, let early clutter bend a survey with 50 % clutter)
 PRIOR_P_DETECT = 0.8
 PRIOR_CLUTTER_SHARE = 0.5
+# the rates are learned from the newest objects in view LEARN_VIEWS times, this many: the
+# survey's present light and growth, at a cost that does not grow with the field (issue
+# 14: all 100,000 plants' EM every RELEARN_FRAMES frames cost 1 ms of the p95 step)
+LEARN_RECENT = 5_000
 
 
 @dataclass(slots=True)
