@@ -49,8 +49,9 @@ LEARN_OBJECTS = 10  # such objects before the survey's own rates are used
 PRIOR_P_DETECT = 0.8
 PRIOR_CLUTTER_SHARE = 0.5
 # the rates are learned from the newest objects in view LEARN_VIEWS times, this many: the
-# survey's present light and growth, at a cost that does not grow with the field (issue
-# 14: all 100,000 plants' EM every RELEARN_FRAMES frames cost 1 ms of the p95 step)
+# survey's present light and growth, with an EM that does not grow with the field (issue
+# 14: all 100,000 plants' EM every RELEARN_FRAMES frames cost 1 ms of the p95 step; the
+# scan that finds them does grow, 0.08 ms at 100,000)
 LEARN_RECENT = 5_000
 
 
