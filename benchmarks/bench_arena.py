@@ -11,6 +11,11 @@ without tuning.
     python benchmarks/bench_arena.py [--seeds 1 2 3] [--minutes 15] [--attribute]
                                      [--set '{"slam": {"window": 0}}']
 
+Each seed's line also gives the association's ceiling: the purity and completeness of a
+mapper that knew the true poses and landmarks and gave each frame's detections their
+likeliest landmarks, one to one (`association_ceiling`). The clusters' landmarks stand
+about a range sigma apart, so even it confuses some; a run is judged against that too.
+
 `--set` changes every variant the same way (to see past a failure of the default; such a
 run is not the default configuration, and the title says so). A run that crashes is a row
 too: where it stopped and why. With several seeds each variant gets a row of their means:
@@ -28,9 +33,11 @@ from typing import Any
 import numpy as np
 from rich.console import Console
 from rich.table import Table
+from scipy.optimize import linear_sum_assignment
 
 from agrislam.config import AgrislamConfig
-from agrislam.evaluation import evaluate
+from agrislam.evaluation import association_counts, evaluate
+from agrislam.geometry.se2 import wrap_angle
 from agrislam.pipeline import RunResult, run_survey
 from agrislam.records import Detections, Record, TruthObject, TruthPose
 from agrislam.sim.arena import ArenaSimulator
@@ -130,6 +137,36 @@ def step_windows(world: ClockedWorld, steps_s: np.ndarray) -> tuple[tuple[float,
         x = ms[inside]
         out.append((float(np.median(x)), float(np.percentile(x, 95))) if len(x) else (np.nan,) * 2)
     return tuple(out)
+
+
+def association_ceiling(records: list[Record]) -> tuple[float, float]:
+    """Purity and completeness of the association a mapper knowing the true poses and
+    landmarks would make: each frame's range-bearing detections to the landmarks of least
+    summed squared normalised error, one to one. No mapper that sees each frame alone does
+    better on the whole (landmarks a range sigma apart are confused by it too)."""
+    landmarks = {r.id: r.xy for r in records if isinstance(r, TruthObject)}
+    number = {name: n for n, name in enumerate(landmarks)}
+    xy = np.array(list(landmarks.values())).reshape(-1, 2)
+    pose: dict[str, np.ndarray] = {}
+    truths: list[int] = []
+    chosen: list[int] = []
+    for r in records:
+        if isinstance(r, TruthPose):
+            pose[r.robot] = r.pose
+        elif isinstance(r, Detections) and r.objects:
+            seen = [(d.range, d.bearing, d.sigma_range, d.sigma_bearing) for d in r.objects]
+            rng, bearing, s_rng, s_bearing = np.array(seen, dtype=float).T[:, :, None]
+            to = xy - pose[r.robot][:2]
+            true_bearing = np.arctan2(to[:, 1], to[:, 0]) - pose[r.robot][2]
+            error = ((rng - np.hypot(to[:, 0], to[:, 1])) / s_rng) ** 2
+            error += (wrap_angle(bearing - true_bearing) / s_bearing) ** 2
+            rows, cols = linear_sum_assignment(error)
+            best = np.argmin(error, axis=1)  # the likeliest, where landmarks run short
+            best[rows] = cols
+            chosen.extend(best.tolist())
+            truths.extend(number.get(d.truth_id, -1) for d in r.objects)
+    counts = association_counts(np.array(truths), np.array(chosen))
+    return counts["purity"], counts["completeness"]
 
 
 def score(result: RunResult, world: ClockedWorld, records: list[Record], survey_s: float) -> Score:
@@ -293,8 +330,10 @@ def main() -> None:
     for seed in args.seeds:
         records, gen_s = simulate(seed, args.minutes, args.attribute)
         frames = sum(isinstance(r, Detections) for r in records)
+        purity, completeness = association_ceiling(records)
         console.print(
-            f"seed {seed}: {len(records)} records, {frames} frames, generated in {gen_s:.1f} s"
+            f"seed {seed}: {len(records)} records, {frames} frames, generated in {gen_s:.1f} s;"
+            f" association ceiling purity {purity:.3f}, completeness {completeness:.3f}"
         )
         done: dict[str, tuple[str, Score | list[str]]] = {}
         for name in args.variants:

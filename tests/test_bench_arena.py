@@ -1,5 +1,8 @@
 """benchmarks/bench_arena.py's scoring: the mean row a change is judged on (issue 11)."""
 
+import numpy as np
+
+from agrislam.records import Detection, Detections, TruthObject, TruthPose
 from benchmark_module import load_benchmark
 
 
@@ -32,3 +35,31 @@ def test_the_mean_row_averages_each_figure_and_is_judged_like_a_seed():
     assert mean.failures() == ["mapped"]  # p95 6.0 = 1.5 x 4.0 still passes
     row = b.cells("agrislam", "mean of 2", mean)
     assert row[1:5] == ["mean of 2", "16.5 / 17", "1.5", "2"]
+
+
+def test_the_association_ceiling_gives_each_frame_its_likeliest_landmarks_one_to_one():
+    """The ceiling knows the true pose and landmarks: a detection on its landmark counts
+    right, one measured on the other landmark wrong, and two in one frame nearest the same
+    landmark share the two out (the one nearer keeps it). Clutter is not counted."""
+    b = load_benchmark("bench_arena")
+    a, other = np.array([2.0, 0.0]), np.array([2.0, 0.4])  # 0.2 rad apart at 2 m
+
+    def seen(xy, truth, nudge=0.0):
+        return Detection(
+            range=float(np.hypot(*xy)),
+            bearing=float(np.arctan2(xy[1], xy[0])) + nudge,
+            sigma_range=0.1,
+            sigma_bearing=0.01,
+            truth_id=truth,
+        )
+
+    records = [
+        TruthObject("a", a),
+        TruthObject("b", other),
+        TruthPose(0.0, "r", np.zeros(3)),
+        Detections(0.0, "r", (seen(a, "a"), seen(a, None, 0.05))),
+        Detections(1.0, "r", (seen(a, "a"), seen(a, "b", 0.03))),  # b's nearer a than b
+        Detections(2.0, "r", (seen(other, "a"),)),  # a confused with b
+        Detections(3.0, "r", (seen(other, "b"),)),
+    ]
+    assert b.association_ceiling(records) == (0.8, 0.8)  # each nearest alone: 0.6, 0.6
