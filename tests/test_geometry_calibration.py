@@ -12,6 +12,7 @@ import pytest
 from agrislam.config import AgrislamConfig, CalibrationConfig
 from agrislam.geometry import se2
 from agrislam.geometry.calibration import (
+    ANCHOR_SPAN,
     FISHER_ITERATIONS,
     PAIRS_A_CALL,
     Anchors,
@@ -206,14 +207,35 @@ def test_an_anchor_pairs_once_the_drift_since_it_outweighs_the_detection_noise()
     assert not ripe.any() and np.allclose(d[:, 0], 0.05)
 
 
+def test_an_anchor_the_robot_drifted_far_from_is_renewed_without_a_pair():
+    """A sighting after a long absence (the drift since over ANCHOR_SPAN x the detection
+    terms: mostly a real robot's bias, not a random walk) makes no pair; it anchors, and
+    the next sighting pairs against it."""
+    anchors, scale = Anchors(slots=8), NoiseScale.configured()
+    ids, cov = np.array([3, 12]), np.tile(0.01 * np.eye(2), (2, 1, 1))
+
+    def sighting(x: float, heading_var: float):
+        drift = odometry_parts(np.diag([0.0, 0.0, heading_var]))
+        xy = np.array([[x, 1.0], [x, 2.0]])
+        return anchors.pair(ids, 0, (xy, cov, drift), scale)
+
+    sighting(5.0, 0.0)
+    _, comps, ripe = sighting(6.0, 0.1)  # drift ~2.6 against detection terms of 0.04
+    drift = np.trace(comps[:, 1:].sum(axis=1), axis1=1, axis2=2)
+    assert np.all(drift > ANCHOR_SPAN * 0.04) and not ripe.any()
+    d, _, ripe = sighting(6.2, 0.105)  # drift ~0.2 since the sighting at 6.0
+    assert ripe.all() and np.allclose(d[:, 0], 0.2)
+
+
 def test_victoria_park_finds_its_heading_noise_without_a_config():
     """The log's heading sigma is ~9x too small (examples/victoria_park.yaml sets 7x by
     hand): in its first 2000 s the default config estimates a factor in the hand tuning's
-    range from its own re-sightings (4.2 from consecutive sightings alone)."""
+    range from its own re-sightings (4.2 from consecutive sightings alone, 9.6 with
+    anchors of any span: the car's drift over a long absence is mostly bias)."""
     log = Path(__file__).resolve().parents[2] / "shared/data/victoria_park/victoria_park.jsonl"
     if not log.exists():
         pytest.skip("Victoria Park data not present")
     records = takewhile(lambda r: getattr(r, "t", 0.0) <= 2000.0, read_log(log))
     noise = run_survey(records, WorldModel(AgrislamConfig())).noise
-    assert noise is not None and noise["anchor_pairs"] > 20
-    assert 5.0 <= noise["sigma_factors"]["heading"] <= 15.0
+    assert noise is not None and noise["anchor_pairs"] >= 5
+    assert 5.0 <= noise["sigma_factors"]["heading"] <= 10.0

@@ -23,11 +23,11 @@ pytestmark = pytest.mark.skipif(not LOG.exists(), reason="Victoria Park data not
 
 def run(until: float, example: bool = True) -> dict:
     """The association's scores over the log's first `until` seconds, with the example
-    config or with none (then also the run's issues, under "issues")."""
+    config or with none, and the run's issues and noise calibration report."""
     mapping = load_mapping(ROOT / "examples" / "victoria_park.yaml") if example else {}
     records = takewhile(lambda r: getattr(r, "t", 0.0) <= until, read_log(LOG))
     result = run_survey(records, WorldModel(AgrislamConfig.model_validate(mapping)))
-    return {**result.metrics["association"], "issues": result.issues}
+    return {**result.metrics["association"], "issues": result.issues, "noise": result.noise}
 
 
 def test_the_first_two_thousand_seconds_associate_as_the_dataset_does():
@@ -55,3 +55,5 @@ def test_with_no_config_the_car_closes_its_first_loop():
 def test_with_no_config_the_whole_log_associates_as_the_dataset_does():
     scores = run(until=float("inf"), example=False)
     assert scores["purity"] >= 0.95 and scores["completeness"] >= 0.95
+    # issue 11: the estimated heading factor in the range the hand tuning found
+    assert 5.0 <= scores["noise"]["sigma_factors"]["heading"] <= 10.0

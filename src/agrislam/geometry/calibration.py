@@ -35,6 +35,7 @@ FISHER_ITERATIONS = 8
 PAIRS_A_CALL = 4096  # the pairs a call sums for an estimate under way (`Scoring`)
 MAX_STEP = 2.0  # the most one estimate changes a sigma factor by
 ANCHOR_SLOTS = 1 << 13  # objects a calibration keeps an anchor sighting of (`Anchors`)
+ANCHOR_SPAN = 10.0  # an anchor pairs while the drift since is 1 to this x the detection noise
 
 
 def odometry_parts(cov: np.ndarray) -> np.ndarray:
@@ -134,6 +135,11 @@ class Anchors:
     that ripens it, it measures that drift. Consecutive sightings, a frame apart, share
     most of their detection error and measure none: on Victoria Park every pair was one of
     those and the heading factor stayed ~1 where the log's heading sigma is ~9x too small.
+    A sighting after a long absence, the drift since over ANCHOR_SPAN times the detection
+    noise, anchors afresh without a pair: over such a span a real robot's drift is mostly
+    bias (a steering offset bends the path, its error growing with the square of the
+    distance, not a random walk's root), and a random walk fitted to it takes a larger
+    factor the longer the span (Victoria Park: 13.3, and 9.6 over its first 2,000 s).
     An object's anchor sits in slot id % slots: memory bounded at any field size, and a
     collision only delays a pair."""
 
@@ -159,8 +165,10 @@ class Anchors:
         held = (self.ids[slot] == ids) & (self.robot[slot] == robot)
         d, comps = pair_components(xy, cov, drift, self.xy[slot], self.cov[slot], self.drift[slot])
         traces = np.trace(comps, axis1=2, axis2=3) * scale.variance  # (n, 3) scaled terms
-        ripe = held & (traces[:, 1:].sum(axis=1) >= traces[:, 0])
-        renew = ~held | ripe
+        drifted = traces[:, 1:].sum(axis=1)
+        stale = held & (drifted > ANCHOR_SPAN * traces[:, 0])
+        ripe = held & (drifted >= traces[:, 0]) & ~stale
+        renew = ~held | ripe | stale
         at = slot[renew]
         self.ids[at], self.robot[at], self.drift[at] = ids[renew], robot, drift
         self.xy[at], self.cov[at] = xy[renew], cov[renew]
