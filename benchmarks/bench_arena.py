@@ -142,8 +142,9 @@ def step_windows(world: ClockedWorld, steps_s: np.ndarray) -> tuple[tuple[float,
 def association_ceiling(records: list[Record]) -> tuple[float, float]:
     """Purity and completeness of the association a mapper knowing the true poses and
     landmarks would make: each frame's range-bearing detections to the landmarks of least
-    summed squared normalised error, one to one. No mapper that sees each frame alone does
-    better on the whole (landmarks a range sigma apart are confused by it too)."""
+    summed squared normalised error, one to one: the most likely joint choice, which a
+    mapper deciding frame by frame on estimated poses and landmarks can hardly beat
+    (landmarks a range sigma apart are confused by it too)."""
     landmarks = {r.id: r.xy for r in records if isinstance(r, TruthObject)}
     number = {name: n for n, name in enumerate(landmarks)}
     xy = np.array(list(landmarks.values())).reshape(-1, 2)
