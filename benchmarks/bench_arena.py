@@ -13,8 +13,9 @@ without tuning.
 
 Each seed's line also gives the association's ceiling: the purity and completeness of a
 mapper that knew the true poses and landmarks and gave each frame's detections their
-likeliest landmarks, one to one (`association_ceiling`). The clusters' landmarks stand
-about a range sigma apart, so even it confuses some; a run is judged against that too.
+likeliest landmarks, one to one, by their geometry alone (`association_ceiling`). The
+clusters' landmarks stand about a range sigma apart, so even it confuses some; a run is
+judged against that too. With `--attribute` the barcodes tell more than the ceiling uses.
 
 `--set` changes every variant the same way (to see past a failure of the default; such a
 run is not the default configuration, and the title says so). A run that crashes is a row
@@ -144,7 +145,8 @@ def association_ceiling(records: list[Record]) -> tuple[float, float]:
     landmarks would make: each frame's range-bearing detections to the landmarks of least
     summed squared normalised error, one to one: the most likely joint choice, which a
     mapper deciding frame by frame on estimated poses and landmarks can hardly beat
-    (landmarks a range sigma apart are confused by it too)."""
+    (landmarks a range sigma apart are confused by it too). Geometry alone: a landmark
+    attribute (a barcode) is not used."""
     landmarks = {r.id: r.xy for r in records if isinstance(r, TruthObject)}
     number = {name: n for n, name in enumerate(landmarks)}
     xy = np.array(list(landmarks.values())).reshape(-1, 2)
@@ -334,7 +336,8 @@ def main() -> None:
         purity, completeness = association_ceiling(records)
         console.print(
             f"seed {seed}: {len(records)} records, {frames} frames, generated in {gen_s:.1f} s;"
-            f" association ceiling purity {purity:.3f}, completeness {completeness:.3f}"
+            f" association ceiling (geometry alone) purity {purity:.3f},"
+            f" completeness {completeness:.3f}"
         )
         done: dict[str, tuple[str, Score | list[str]]] = {}
         for name in args.variants:
