@@ -43,6 +43,7 @@ from agrislam.pipeline import RunResult, run_survey
 from agrislam.records import Detections, Record, TruthObject, TruthPose
 from agrislam.sim.arena import ArenaSimulator
 from agrislam.sim.config import ArenaConfig
+from agrislam.sim.range_bearing import true_range_bearing
 from agrislam.world import StepReport, WorldModel
 
 VARIANTS: dict[str, dict[str, Any]] = {
@@ -159,9 +160,8 @@ def association_ceiling(records: list[Record]) -> tuple[float, float]:
         elif isinstance(r, Detections) and r.objects:
             seen = [(d.range, d.bearing, d.sigma_range, d.sigma_bearing) for d in r.objects]
             rng, bearing, s_rng, s_bearing = np.array(seen, dtype=float).T[:, :, None]
-            to = xy - pose[r.robot][:2]
-            true_bearing = np.arctan2(to[:, 1], to[:, 0]) - pose[r.robot][2]
-            error = ((rng - np.hypot(to[:, 0], to[:, 1])) / s_rng) ** 2
+            true_rng, true_bearing = true_range_bearing(pose[r.robot][None], xy)
+            error = ((rng - true_rng) / s_rng) ** 2
             error += (wrap_angle(bearing - true_bearing) / s_bearing) ** 2
             rows, cols = linear_sum_assignment(error)
             best = np.argmin(error, axis=1)  # the likeliest, where landmarks run short

@@ -35,14 +35,19 @@ class Observations:
         return range(int(lo), int(hi))
 
 
+def true_range_bearing(poses: np.ndarray, landmarks: np.ndarray) -> tuple[np.ndarray, ...]:
+    """(f, k) true range and bearing of each of k landmarks (k, 2) from each pose (f, 3)."""
+    d = landmarks[None, :, :] - poses[:, None, :2]
+    r = np.hypot(d[..., 0], d[..., 1])
+    return r, wrap_angle(np.arctan2(d[..., 1], d[..., 0]) - poses[:, 2:3])
+
+
 def in_view(
     poses: np.ndarray, landmarks: np.ndarray, cfg: RangeBearingCamera
 ) -> tuple[np.ndarray, ...]:
     """(frame, landmark) index pairs of the landmarks inside range and field of view from each
     pose (f, 3), sorted by frame, with their true range and bearing."""
-    d = landmarks[None, :, :] - poses[:, None, :2]
-    r = np.hypot(d[..., 0], d[..., 1])
-    b = wrap_angle(np.arctan2(d[..., 1], d[..., 0]) - poses[:, 2:3])
+    r, b = true_range_bearing(poses, landmarks)
     seen = (r >= cfg.min_range) & (r <= cfg.max_range) & (np.abs(b) <= np.deg2rad(cfg.fov_deg) / 2)
     frame, landmark = np.nonzero(seen)  # row-major: sorted by frame
     return frame, landmark, r[frame, landmark], b[frame, landmark]
