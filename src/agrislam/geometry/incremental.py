@@ -68,6 +68,7 @@ from agrislam.geometry.marginal_cache import MarginalCache
 from agrislam.geometry.refold import refold
 from agrislam.geometry.retired import Anchored, FrozenKeyframes, RetiredObjects, RetiredPoses
 from agrislam.geometry.se2 import between, compose, pose_uncertainty_at, rotation, to_robot_frame
+from agrislam.geometry.sparsify import sparsified
 
 FOLD_ITERATIONS = 2  # Gauss-Newton iterations on the window before it is folded away
 SLOTS_SLACK, SLOTS_FLOOR = 8, 8000  # iSAM2 rebuilt when its slots pass slack x live + floor
@@ -76,6 +77,7 @@ SLOTS_SLACK, SLOTS_FLOOR = 8, 8000  # iSAM2 rebuilt when its slots pass slack x 
 # keyframe graph instead: iSAM2 re-eliminated that factor at every step after (issue 11:
 # five robots sharing landmarks, 367 keyframes, 600 ms steps)
 REFOLD_MAX_KEYS = 100
+NEWEST_EXACT = 3  # per robot, see `_newest`
 AGED_PER_FOLD = 2  # per robot: one that joins shrinks the others' share over folds, not in one
 
 
@@ -312,6 +314,7 @@ class IncrementalBackend(BackendBase):
                         insert_value(point, key, self._estimate(key))
             self._retire(window, graph, point, starts)
             marginal = marginalised(graph, point, window, self.issues)
+            marginal = sparsified(marginal, point, self._newest(), self.issues)
             for key in marginal.keyVector():
                 if key_kind(key) == POSE and key not in self._folded_heading:
                     self._folded_heading[key] = point.atPose2(key).theta()
@@ -323,6 +326,11 @@ class IncrementalBackend(BackendBase):
             self._solve_pending(marginal)
         self._window_start = self._step
         self.rolls += 1
+
+    def _newest(self) -> set[int]:
+        """Each robot's NEWEST_EXACT newest keyframes: a fold's marginal keeps their joint
+        exact (geometry/sparsify.py); the current poses and objects hang from them."""
+        return {k for frames in self._keyframes.values() for k in frames[-NEWEST_EXACT:]}
 
     def _aged_keyframes(self) -> set[int]:
         """Keyframes past each robot's newest share of `keyframes_kept`, at most
