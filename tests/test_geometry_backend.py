@@ -524,6 +524,38 @@ def test_a_new_poses_covariance_carried_through_its_odometry_is_isam2s(window):
         np.testing.assert_allclose(carried, solved, rtol=1e-9, atol=1e-12)
 
 
+def test_a_robots_pose_covariance_is_read_once_at_its_own_update():
+    """Five robots' frames each read the previous pose's covariance; read fresh it walked
+    the Bayes tree down to where the other robots' updates had sunk the pose (issue 11:
+    1.4 ms a frame late in the arena). The update reads it while the pose is at the top;
+    the next frame carries that, which the other robots' frames since can only have made
+    the wider (they add information)."""
+    g = make_backend(SlamConfig(window=0), RowsConfig())
+    landmark = np.array([1.0, 1.0])
+    g.add_object(0, landmark)
+    starts = {"a": np.array([0.0, 0.0, 0.0]), "b": np.array([2.0, 0.0, np.pi / 2])}
+    for robot, start in starts.items():
+        g.add_robot(robot, start, np.array([0.1, 0.1, 0.05]))
+    read_at = {}
+    for t in range(1, 8):
+        for robot in starts:
+            g.add_odometry(robot, float(t), np.array([0.1, 0.0, 0.02]), np.diag([1e-3, 1e-3, 4e-4]))
+            if t > 1:  # the pose its last update read is not read again ...
+                previous = g.graph.robot(robot).keys[-2]
+                g.current_pose_covariance(robot)
+                assert g._marginals.read_at(previous) == read_at[robot]
+                # ... and what was read then is iSAM2's now, or wider (here, a robot that
+                # shares its only landmark: one frame of the other narrows it by a third)
+                kept = g._marginal_covariance(previous)
+                fresh = g._isam.marginalCovariance(previous)
+                assert np.linalg.eigvalsh(kept - fresh).min() > -1e-12
+                assert np.all(np.diag(kept) <= 2.0 * np.diag(fresh))
+            z = observe_from(g.current_pose(robot), landmark)
+            g.add_observation(robot, 0, RelativePosition(z, detection_covariance(z, 0.05, 0.01)))
+            read_at[robot] = g._step  # the step the update reads at
+            g.update()
+
+
 @pytest.mark.parametrize("kept, per_robot", [(100, 3), (3, 30)])
 def test_a_robot_keeps_the_smaller_of_its_share_and_keyframes_per_robot(
     small_survey, kept, per_robot

@@ -229,7 +229,10 @@ class IncrementalBackend(BackendBase):
     # ------------------------------------------------------------------ solving
     def update(self) -> bool:
         """One iSAM2 step with this step's factors; every `window` steps, a keyframe (True)."""
+        poses = self._pending.entered(POSE)
         self._solve_pending()
+        for key in poses:  # read while at the Bayes tree's top (its robot's next frame
+            self._marginal_covariance(key)  # carries it, `current_pose_covariance`)
         self._step += 1
         since = self._step - self._window_start
         if not self.window or since < self.window:

@@ -20,6 +20,7 @@ import numpy as np
 
 from agrislam.config import SlamConfig
 from agrislam.geometry.batch import insert_value, value_array
+from agrislam.geometry.graph import key_kind
 from agrislam.geometry.retired import Anchored
 
 Serialisable = TypeVar("Serialisable", gtsam.NonlinearFactorGraph, gtsam.Values)
@@ -83,6 +84,10 @@ class PendingUpdate:
     def guess(self, key: int) -> np.ndarray | None:
         """The initial value of a node entered since the last update, else None."""
         return self._guess.get(key)
+
+    def entered(self, kind: str) -> list[int]:
+        """The nodes of `kind` (graph.POSE, ...) entered since the last update."""
+        return [key for key in self._guess if key_kind(key) == kind]
 
     def has_nodes(self) -> bool:
         return bool(self._guess)
