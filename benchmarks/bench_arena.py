@@ -8,7 +8,7 @@ default configuration and the paper's association (the K_n gate, sec. 2.4) pinne
 baseline. The default config is the point: the real data this stands for will be mapped
 without tuning.
 
-    python benchmarks/bench_arena.py [--seeds 1 2 3] [--minutes 15] [--attribute]
+    python benchmarks/bench_arena.py [--seeds 1 2 3] [--minutes 15] [--attribute] [--stages]
                                      [--set '{"slam": {"window": 0}}']
 
 Each seed's line also gives the association's ceiling: the purity and completeness of a
@@ -16,6 +16,9 @@ mapper that knew the true poses and landmarks and gave each frame's detections t
 likeliest landmarks, one to one, by their geometry alone (`association_ceiling`). The
 clusters' landmarks stand about a range sigma apart, so even it confuses some; a run is
 judged against that too. With `--attribute` the barcodes tell more than the ceiling uses.
+
+`--stages` prints each run's steps' p95 minute by minute with its dearest stages: where a
+step-time drift comes from.
 
 `--set` changes every variant the same way (to see past a failure of the default; such a
 run is not the default configuration, and the title says so). A run that crashes is a row
@@ -141,6 +144,27 @@ def step_windows(world: ClockedWorld, steps_s: np.ndarray) -> tuple[tuple[float,
     return tuple(out)
 
 
+def minute_stages(
+    step_t: list[float], step_times: dict[str, np.ndarray], top: int = 4
+) -> list[str]:
+    """Per minute of the survey: the steps' p95 (ms) and the `top` stages' own p95 (where a
+    drift comes from: `--stages`)."""
+    t = np.asarray(step_t) - step_t[0]
+    total = sum(step_times.values())
+    lines = []
+    for minute in range(int(t.max() // WINDOW_S) + 1):
+        inside = (t >= minute * WINDOW_S) & (t < (minute + 1) * WINDOW_S)
+        if not inside.any():
+            continue
+        p95 = {stage: 1e3 * np.percentile(s[inside], 95) for stage, s in step_times.items()}
+        dearest = sorted(p95, key=p95.__getitem__, reverse=True)[:top]
+        parts = ", ".join(f"{stage} {p95[stage]:.1f}" for stage in dearest)
+        lines.append(
+            f"minute {minute}: p95 {1e3 * np.percentile(total[inside], 95):.1f} ms ({parts})"
+        )
+    return lines
+
+
 def association_ceiling(records: list[Record]) -> tuple[float, float]:
     """Purity and completeness of the association a mapper knowing the true poses and
     landmarks would make: each frame's range-bearing detections to the landmarks of least
@@ -264,8 +288,9 @@ COLUMNS = (
 
 def run_variant(
     name: str, seed: int, cfg: AgrislamConfig, records: list[Record], survey_s: float
-) -> tuple[Score | list[str], dict[str, int]]:
-    """One run scored, or, if it crashed, the row saying where it stopped and why."""
+) -> tuple[Score | list[str], dict[str, int], list[str]]:
+    """One run scored, or, if it crashed, the row saying where it stopped and why; its
+    issues, and its steps' p95 minute by minute (`minute_stages`)."""
     world = ClockedWorld(cfg)
     start = time.perf_counter()
     try:
@@ -274,8 +299,9 @@ def run_variant(
         at = world.step_t[-1] if world.step_t else float("nan")
         reason = f"{type(err).__name__}: {str(err).strip().splitlines()[0]}"
         wall = time.perf_counter() - start
-        return crashed_cells(name, seed, at, len(world.step_t), wall, reason), {}
-    return score(result, world, records, survey_s), result.issues
+        return crashed_cells(name, seed, at, len(world.step_t), wall, reason), {}, []
+    minutes = minute_stages(world.step_t, result.snapshot.step_times)
+    return score(result, world, records, survey_s), result.issues, minutes
 
 
 def deep_update(base: dict[str, Any], extra: dict[str, Any]) -> dict[str, Any]:
@@ -308,6 +334,9 @@ def main() -> None:
     parser.add_argument("--minutes", type=float, default=15.0, help="survey length")
     parser.add_argument(
         "--attribute", action="store_true", help="landmarks carry a noisy barcode id"
+    )
+    parser.add_argument(
+        "--stages", action="store_true", help="each run's step p95 minute by minute, by stage"
     )
     parser.add_argument(
         "--variants", nargs="+", choices=list(VARIANTS), default=list(VARIANTS), metavar="NAME"
@@ -348,10 +377,12 @@ def main() -> None:
                 label = f"{name} (= {same})"
                 row = cells(label, seed, res) if isinstance(res, Score) else [label, *res[1:]]
             else:
-                res, issues = run_variant(name, seed, cfg, records, 60.0 * args.minutes)
+                res, issues, minutes = run_variant(name, seed, cfg, records, 60.0 * args.minutes)
                 done[key] = (name, res)
                 if issues:
                     console.print(f"  {name}: issues {issues}")
+                for line in minutes if args.stages else []:
+                    console.print(f"  {name}: {line}")
                 if isinstance(res, Score) and res.noise:
                     console.print(f"  {name}: noise scales {res.noise}")
                 row = cells(name, seed, res) if isinstance(res, Score) else res
