@@ -145,12 +145,12 @@ def step_windows(world: ClockedWorld, steps_s: np.ndarray) -> tuple[tuple[float,
 
 
 def minute_stages(
-    step_t: list[float], step_times: dict[str, np.ndarray], top: int = 4
+    step_t: list[float], step_times: dict[str, np.ndarray], steps_s: np.ndarray, top: int = 4
 ) -> list[str]:
-    """Per minute of the survey: the steps' p95 (ms) and the `top` stages' own p95 (where a
-    drift comes from: `--stages`)."""
+    """Per minute of the survey: the steps' p95 (ms; `steps_s`, each step's whole time) and
+    the `top` stages' own p95 (where a drift comes from: `--stages`)."""
     t = np.asarray(step_t) - step_t[0]
-    total = sum(step_times.values())
+    total = np.asarray(steps_s)
     lines = []
     for minute in range(int(t.max() // WINDOW_S) + 1):
         inside = (t >= minute * WINDOW_S) & (t < (minute + 1) * WINDOW_S)
@@ -300,7 +300,8 @@ def run_variant(
         reason = f"{type(err).__name__}: {str(err).strip().splitlines()[0]}"
         wall = time.perf_counter() - start
         return crashed_cells(name, seed, at, len(world.step_t), wall, reason), {}, []
-    minutes = minute_stages(world.step_t, result.snapshot.step_times)
+    snapshot = result.snapshot
+    minutes = minute_stages(world.step_t, snapshot.step_times, snapshot.step_seconds())
     return score(result, world, records, survey_s), result.issues, minutes
 
 

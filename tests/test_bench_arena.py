@@ -70,7 +70,7 @@ def test_the_minute_table_gives_each_minutes_p95_and_its_dearest_stages():
     t = np.arange(0.0, 180.0, 0.5)  # three minutes of steps, the last one slow in "optimise"
     optimise = np.where(t >= 120.0, 0.010, 0.001)
     times = {"associate": np.full(len(t), 0.002), "optimise": optimise, "place": np.zeros(len(t))}
-    lines = b.minute_stages((t + 1000.0).tolist(), times, top=2)
+    lines = b.minute_stages((t + 1000.0).tolist(), times, sum(times.values()), top=2)
     assert len(lines) == 3
     assert lines[0] == "minute 0: p95 3.0 ms (associate 2.0, optimise 1.0)"
     assert lines[2] == "minute 2: p95 12.0 ms (optimise 10.0, associate 2.0)"
