@@ -2,10 +2,12 @@
 unless, with no field prior to say how near two can be, they were detected together; a
 third object living between two on their detections is merged all the same."""
 
+import itertools
+
 import numpy as np
 
 from agrislam.config import SemanticsConfig
-from agrislam.maintenance import CROWD_EXPECTED, TOGETHER_SHARE, Merger
+from agrislam.maintenance import CROWD_MIN_FRAMES, TOGETHER_SHARE, Merger
 from agrislam.objects import ObjectTable
 from agrislam.semantics.beliefs import BeliefTable
 from agrislam.spatial_index import SpatialIndex
@@ -68,7 +70,7 @@ def test_an_object_between_two_fed_by_their_detections_is_merged_into_its_neares
     frames = [np.array([0, 1])] * 20 + [np.array([0, 2]), np.array([2, 1])] * 10
     pairs, merger, ids = detected(frames, CROWD_XY)
     assert merger.together(int(ids[2]), ids[:2]).tolist() == [10, 10]
-    assert CROWD_EXPECTED <= 20 * 0.5 * 0.5  # all three would have met in 5 of its frames
+    assert CROWD_MIN_FRAMES <= 20  # seen often enough to judge
     assert pairs == [(int(ids[0]), int(ids[2]))]
 
 
@@ -79,10 +81,28 @@ def test_three_landmarks_detected_all_at_once_stay_three():
 
 
 def test_a_crowd_too_little_seen_to_judge_stays():
-    # the third object met each neighbour twice: all three would have met in under one frame
+    # the third object met each neighbour twice: too few frames to tell a ghost
     frames = [np.array([0, 1])] * 20 + [np.array([0, 2]), np.array([2, 1])] * 2
     pairs, _, _ = detected(frames, CROWD_XY)
     assert pairs == []
+
+
+# three landmarks 0.16 m apart, each with two objects: its own and a twin beside it
+TRIO = np.array([[0.0, 0.0], [0.16, 0.0], [0.08, 0.14]])
+TWINS_XY = np.vstack([TRIO, TRIO + np.array([0.03, 0.03])])
+
+
+def test_three_landmarks_fed_to_six_objects_lose_the_least_seen():
+    # each frame detects the three landmarks, and their detections go to three of the six
+    # objects, any three: every two objects meet often (no pair is spared by the pairwise
+    # test), but no frame detects more than three of the six
+    cycle = [np.array(c) for c in itertools.combinations(range(6), 3)]
+    frames = cycle * 2 + [c for c in cycle if 5 not in c]  # the last twin is the least seen
+    pairs, merger, ids = detected(frames, TWINS_XY)
+    twin = int(ids[5])
+    assert CROWD_MIN_FRAMES <= 20  # the twin's frames: 10 of the 20 threes, twice
+    assert (merger.together(twin, ids[:5]) > TOGETHER_SHARE * 20).all()
+    assert (int(ids[2]), twin) in pairs  # into its nearest
 
 
 def test_a_merged_objects_frames_with_its_neighbours_count_as_its_keepers():

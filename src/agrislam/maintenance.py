@@ -65,10 +65,9 @@ class MaintenanceResult:
 # less-seen one are two (a split object's parts are seen together only when an outlier or a
 # neighbour's detection goes to one of them)
 TOGETHER_SHARE = 0.1
-# frames an object and all its near neighbours would be detected together if each came as
-# often as with it alone, before their never coming all together counts (a Poisson count
-# of 5 is 0 in under 1 % of surveys)
-CROWD_EXPECTED = 5.0
+# frames the least seen object of a crowd must have before its company is judged (a
+# landmark's object in the arena has hundreds; a crowd's ghost lives on tens)
+CROWD_MIN_FRAMES = 20
 
 
 class Merger:
@@ -80,8 +79,10 @@ class Merger:
 
     Between two landmarks a third object can live on their detections, each frame's
     ambiguous one going to it: it is detected with each of the two often, never with both
-    (one object too many for the frames' detections). Such a crowd's least seen object,
-    detected with its neighbours often but never with all at once, is merged too."""
+    (one object too many for the frames' detections). Three landmarks' detections can feed
+    six objects the same way. Such a crowd's least seen object, detected with its
+    neighbours often but never with all at once, is merged too, until the crowd is no
+    larger than what its frames detect together."""
 
     def __init__(self) -> None:
         # per object, the sets of other objects detected near it in one frame -> frames
@@ -126,20 +127,23 @@ class Merger:
 
     def surplus(self, crowd: np.ndarray, n_frames: np.ndarray) -> int | None:
         """The object one too many in `crowd` (three or more near objects), if any: the
-        least seen, when in most of its frames it was detected with others of the crowd,
-        each often enough that, were they independent, all would have come with it in
-        CROWD_EXPECTED frames, and they came in at most TOGETHER_SHARE of that."""
+        least seen, when in most of its frames it was detected with others of the crowd, but
+        with all of them in at most TOGETHER_SHARE of those: the crowd has more objects than
+        its frames detect at once (a pair and a ghost between them; or three landmarks
+        whose detections went to six objects, which the frames never detect more than three
+        of). Judged once it has CROWD_MIN_FRAMES frames."""
         if len(crowd) < 3:
             return None
         obj = int(crowd[np.argmin(n_frames[crowd])])
-        others, n = crowd[crowd != obj], int(n_frames[obj])
-        everyone = frozenset(others.tolist())
+        n = int(n_frames[obj])
+        if n < CROWD_MIN_FRAMES:
+            return None
+        everyone = frozenset(crowd[crowd != obj].tolist())
         company = self._company.get(obj, {})
         with_some = sum(k for s, k in company.items() if s & everyone)
         all_together = sum(k for s, k in company.items() if everyone <= s)
-        expected = n * float(np.prod(self.together(obj, others) / max(n, 1)))
-        crowded = with_some >= 0.5 * n and expected >= CROWD_EXPECTED
-        return obj if crowded and all_together <= TOGETHER_SHARE * expected else None
+        crowded = with_some >= 0.5 * n
+        return obj if crowded and all_together <= TOGETHER_SHARE * with_some else None
 
     def pairs(
         self,
