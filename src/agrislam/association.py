@@ -45,6 +45,17 @@ class PlacedDetections:
     def __len__(self) -> int:
         return len(self.xy)
 
+    def subset(self, keep: np.ndarray) -> PlacedDetections:
+        """The detections where `keep` (m,) is True."""
+        rows = np.flatnonzero(keep)
+        robot_frame = (self.robot_xy, self.robot_cov, self.pose_cov)
+        return PlacedDetections(
+            self.xy[rows],
+            self.cov[rows],
+            [self.measurements[i] for i in rows.tolist()],
+            *(None if a is None else a[rows] for a in robot_frame),
+        )
+
 
 def informative_measurements(
     schema: FieldSchema | None, measurements: Mapping[str, Measurement]

@@ -267,7 +267,14 @@ class WorldModel:
             placed = self._place(robot, detections)
         with timer("associate"):
             object_ids = self._associate(robot, placed, t)
+            pose, parts = self.backend.current_pose(robot), (self.index, self.backend, self.objects)
+            on_ray = self.outliers.of_new_objects(pose, placed, object_ids, *parts)
+            mapped = (on_ray < 0) | (not self.outliers.trusted)
+            if not mapped.all():  # gross range errors: reported as their objects, not mapped
+                detections = [d for d, m in zip(detections, mapped, strict=True) if m]
+                placed, object_ids = placed.subset(mapped), object_ids[mapped]
             new_ids = self._create_objects(object_ids, placed, t)
+            self.outliers.born(object_ids[on_ray[mapped] >= 0], t, self.objects)
             seen = np.unique(object_ids)
             self.merger.saw(object_ids, placed.xy, 2.0 * self.association.d_inter)
         with timer("noise"):
@@ -276,7 +283,6 @@ class WorldModel:
             self.beliefs.update(object_ids, [d.attributes for d in detections], t)
         with timer("confirm"):
             self.existence.observe(placed.robot_xy)
-            pose = self.backend.current_pose(robot)
             self.outliers.saw(pose, placed, object_ids, self.index, self.backend, self.objects)
             dropped = self.existence.look(pose, self.index, seen, self.objects, self._first_own)
         with timer("optimise"):
@@ -304,7 +310,8 @@ class WorldModel:
             loop = self.loops.pairs(self._robot_index(robot), t, self.objects, self.backend, scale)
             result.merged += self._merge(loop)
             result.pruned += self._prune(self.objects.active(dropped).tolist())
-        report = StepReport(t, robot, self.resolve(object_ids), new_ids, result, {})
+        on_ray[mapped] = object_ids
+        report = StepReport(t, robot, self.resolve(on_ray), new_ids, result, {})
         report.seconds = timer.close_step()
         return report
 
