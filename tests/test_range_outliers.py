@@ -11,6 +11,7 @@ from agrislam.range_outliers import (
     JUDGED_AFTER_S,
     LANDMARK_AFTER_S,
     OUTLIER_MAX_MEAS,
+    RANGE_ERRORS,
     TRUST_JUDGED,
     TRUST_SHARE,
     RangeOutliers,
@@ -188,5 +189,6 @@ def test_a_world_reports_a_range_outlier_as_its_landmark_and_does_not_map_it():
     assert report.object_ids.tolist() == [landmark] and len(report.new_ids) == 0
     assert len(world_model.objects) == n_objects
     assert world_model.objects.n_meas[landmark] == n_meas  # not mapped
+    assert world_model.issues[RANGE_ERRORS] == 1  # and the user is told
     after = world_model.backend.object_positions(np.array([landmark]))[0]
     assert np.allclose(after, before, atol=1e-6)

@@ -49,8 +49,8 @@ from agrislam.world import WorldModel
 # geometry/key_table.py; 5: the truth as arrays, ground_truth.py; 6: tables grown by
 # growing.Doubling; 7: geometry/marginal_cache.py, the factor store's rows in use alone;
 # 8: the world's maintenance.Merger; 9: the Merger's sets of objects detected together;
-# 10: the world's rejoin.Rejoiner)
-FORMAT = b"agrislam-checkpoint 12"
+# 10: the world's rejoin.Rejoiner; 13: the objects RangeOutliers watches and has judged)
+FORMAT = b"agrislam-checkpoint 13"
 # the modules a checkpoint's objects may come from
 TRUSTED_MODULES = {"agrislam", "numpy", "collections", "copyreg", "builtins", "pydantic"}
 TRUSTED_MODULES |= {"pydantic_core", "scipy"}

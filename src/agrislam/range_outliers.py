@@ -23,6 +23,8 @@ OUTLIER_MAX_MEAS = 10
 # tree the laser missed and the one behind it)
 JUDGED_AFTER_S, LANDMARK_AFTER_S = 30.0, 120.0
 TRUST_JUDGED, TRUST_SHARE = 20, 0.95
+# the run's issue that counts the detections so taken
+RANGE_ERRORS = "detections taken for a mapped landmark's range errors (range_outliers.py)"
 
 
 class RangeOutliers:

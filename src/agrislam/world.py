@@ -43,7 +43,7 @@ from agrislam.maintenance import AfterFold, Existence, MaintenanceResult, Merger
 from agrislam.objects import ObjectTable
 from agrislam.prior.backend import PriorBackend
 from agrislam.prior.map import PriorMap
-from agrislam.range_outliers import RangeOutliers
+from agrislam.range_outliers import RANGE_ERRORS, RangeOutliers
 from agrislam.records import Detection, Detections, FieldPrior, GnssFix, Meta, Odometry, Record
 from agrislam.rejoin import Rejoiner
 from agrislam.released import Released
@@ -271,6 +271,7 @@ class WorldModel:
             on_ray = self.outliers.of_new_objects(pose, placed, object_ids, *parts)
             mapped = (on_ray < 0) | (not self.outliers.trusted)
             if not mapped.all():  # gross range errors: reported as their objects, not mapped
+                self.issues[RANGE_ERRORS] += int((~mapped).sum())
                 detections = [d for d, m in zip(detections, mapped, strict=True) if m]
                 placed, object_ids = placed.subset(mapped), object_ids[mapped]
             new_ids = self._create_objects(object_ids, placed, t)
