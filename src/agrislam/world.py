@@ -311,7 +311,7 @@ class WorldModel:
             loop = self.loops.pairs(self._robot_index(robot), t, self.objects, self.backend, scale)
             result.merged += self._merge(loop)
             result.pruned += self._prune(self.objects.active(dropped).tolist())
-        on_ray[mapped] = object_ids
+        on_ray[mapped] = object_ids  # the report: range errors go to their landmarks
         report = StepReport(t, robot, self.resolve(on_ray), new_ids, result, {})
         report.seconds = timer.close_step()
         return report
