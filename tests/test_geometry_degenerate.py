@@ -25,12 +25,14 @@ def test_component_keeps_the_factors_connected_to_the_seed_in_order():
     graph.push_back(gtsam.BetweenFactorPose2(10, 11, gtsam.Pose2(), noise))  # another robot
     graph.push_back(gtsam.BetweenFactorPose2(3, 2, gtsam.Pose2(), noise))
     graph.push_back(gtsam.PriorFactorPose2(11, gtsam.Pose2(), noise))
+    graph.push_back(gtsam.PriorFactorPose2(20, gtsam.Pose2(), noise))  # held by a prior only
     parts = components(graph)
     local, nodes = parts[3]
     assert nodes == {1, 2, 3}
     assert [tuple(local.at(n).keys()) for n in range(local.size())] == [(1, 2), (3, 2)]
     assert parts[11][1] == {10, 11}
     assert parts[1] is parts[2]  # one part, found once
+    assert parts[20][1] == {20} and parts[20][0].size() == 1
 
 
 def test_indeterminate_key_reads_the_node_gtsam_names():

@@ -223,9 +223,10 @@ def components(
         return key
 
     keys = [list(graph.at(n).keys()) for n in range(graph.size())]
-    for factor_keys in keys:
+    for factor_keys in filter(None, keys):
+        first = root(factor_keys[0])  # a node only a prior holds is a part of its own
         for key in factor_keys[1:]:
-            parent[root(key)] = root(factor_keys[0])
+            parent[root(key)] = first
     parts: dict[int, tuple[gtsam.NonlinearFactorGraph, set[int]]] = {}
     for key in parent:
         parts.setdefault(root(key), (gtsam.NonlinearFactorGraph(), set()))[1].add(key)
