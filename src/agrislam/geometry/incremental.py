@@ -533,10 +533,11 @@ class IncrementalBackend(BackendBase):
         """(k, 3) current pose of each of `keyframes`, each distinct one read once."""
         return np.array(per_distinct(keyframes, self._estimate)).reshape(-1, 3)
 
-    def _split(self, object_ids: np.ndarray) -> tuple[np.ndarray, list[int]]:
-        """The retired-object row of each object (-1: live) and the keys of the live ones."""
-        keys = self.graph.require_objects(object_ids)
-        rows = self._retired_objects.rows(keys)
+    def _split(
+        self, keys: list[int], retired: RetiredObjects | RetiredPoses
+    ) -> tuple[np.ndarray, list[int]]:
+        """The retired row of each node (-1: live) and the keys of the live ones."""
+        rows = retired.rows(keys)
         return rows, [k for k, r in zip(keys, rows.tolist(), strict=True) if r < 0]
 
     def settled_objects(self) -> np.ndarray:
@@ -546,36 +547,32 @@ class IncrementalBackend(BackendBase):
     def object_positions(self, object_ids: np.ndarray) -> np.ndarray:
         """(k, 2) current estimates; a retired object's is its keyframe's pose (+) z, all
         at once (a snapshot of a large map asks for every object)."""
-        rows, live = self._split(object_ids)
-        retired = rows >= 0
-        out = np.empty((len(object_ids), 2))
-        out[~retired] = np.array([self._estimate(k) for k in live]).reshape(-1, 2)
-        out[retired] = self._retired_objects.placed(rows[retired], self._frames)
-        return out
+        return self._placed(self.graph.require_objects(object_ids), self._retired_objects, 2)
 
     def trajectory(self, robot: str) -> tuple[np.ndarray, np.ndarray]:
         """Times and (m, 3) poses of the robot; its retired poses placed all at once."""
         chain = self.graph.robot(robot)
-        rows = self._retired_poses.rows(chain.keys)
-        retired = rows >= 0
-        poses = np.empty((len(chain.keys), 3))
-        live = [k for k, r in zip(chain.keys, rows.tolist(), strict=True) if r < 0]
-        poses[~retired] = np.array([self._estimate(k) for k in live]).reshape(-1, 3)
-        poses[retired] = self._retired_poses.placed(rows[retired], self._frames)
-        return np.array(chain.times), poses
+        return np.array(chain.times), self._placed(chain.keys, self._retired_poses, 3)
+
+    def _placed(self, keys: list[int], retired: RetiredObjects | RetiredPoses, dim: int):
+        """(k, dim) estimates of `keys`: the live ones each, the retired placed at once."""
+        rows, live = self._split(keys, retired)
+        out = np.empty((len(keys), dim))
+        out[rows < 0] = np.array([self._estimate(k) for k in live]).reshape(-1, dim)
+        out[rows >= 0] = retired.placed(rows[rows >= 0], self._frames)
+        return out
 
     def object_covariances(self, object_ids: np.ndarray) -> np.ndarray:
         """(k, 2, 2) marginal covariances of the given objects, cached until the next step;
         a retired object's combines its keyframe's and its relative position's."""
-        pending = self._pending.guess
-        if any(pending(key) is not None for key in self.graph.require_objects(object_ids)):
+        keys = self.graph.require_objects(object_ids)
+        if any(self._pending.guess(key) is not None for key in keys):
             self._solve_pending()  # entered since the last update (a merge): solve them now
-        rows, live = self._split(object_ids)
+        rows, live = self._split(keys, self._retired_objects)
         retired, rows = rows >= 0, rows[rows >= 0]
         out = np.empty((len(object_ids), 2, 2))
-        for key in live:
-            if key in self._guess:
-                raise ValueError(f"object {key_index(key)} has no observation yet")
+        if unseen := [key for key in live if key in self._guess]:
+            raise ValueError(f"object {key_index(unseen[0])} has no observation yet")
         keyframes = self._retired_objects.keyframes[rows]
         in_isam = [k for k in live + keyframes.tolist() if k not in self._frozen]
         self._marginals.read_jointly(in_isam, self._step, self._reuse, self._isam)
