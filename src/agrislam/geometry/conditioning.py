@@ -56,6 +56,14 @@ def conditioned(
     return out
 
 
+def weakly_held(values: dict[int, np.ndarray]) -> gtsam.NonlinearFactorGraph:
+    """A weak prior (FREE_SIGMA) holding each node where it is."""
+    point = gtsam.Values()
+    for key, value in values.items():
+        insert_value(point, key, value)
+    return conditioned(gtsam.NonlinearFactorGraph(), point, None, list(values))
+
+
 def marginal_covariances(
     graph: gtsam.NonlinearFactorGraph, point: gtsam.Values, keys: list[int]
 ) -> list[np.ndarray]:

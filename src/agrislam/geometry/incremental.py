@@ -37,11 +37,11 @@ from agrislam.geometry.base import BackendBase, pose_array
 from agrislam.geometry.batch import insert_value, solve, value_array, values_at
 from agrislam.geometry.conditioning import (
     components,
-    conditioned,
     covariances_given,
     indeterminate_key,
     marginalised,
     shared_copy,
+    weakly_held,
 )
 from agrislam.geometry.drift import adjoint
 from agrislam.geometry.graph import (
@@ -267,20 +267,29 @@ class IncrementalBackend(BackendBase):
                 self._marginals.measured(entry.keys)
 
     def _isolate(
-        self, err: RuntimeError, extra: gtsam.NonlinearFactorGraph | None
+        self, err: RuntimeError, extra: gtsam.NonlinearFactorGraph | None, fold: bool = True
     ) -> list[tuple[int, Entry]] | None:
-        """The update was indeterminate near a node (a row without members): a fresh iSAM2
-        of the live factors, the node held by a weak prior, the update again (issue 12)."""
+        """Indeterminate near a node (a row without members): iSAM2 rebuilt, the node weakly held,
+        the update again (issue 12); failing again, a fold's marginal gives way to weak priors."""
         key = indeterminate_key(err)
         if key is None or key not in self._live:  # (entered nodes are live already)
             raise err
-        self._rebuild()  # raises below only if the update fails again
-        insert_value(point := gtsam.Values(), key, self._estimate(key))
-        held = conditioned(gtsam.NonlinearFactorGraph(), point, None, [key])
+        keys = {key} | self._pending.factor_keys() | set(extra.keyVector() if extra else [])
+        known = {k: self._estimate(k) for k in keys}  # read before the rebuild drops any
+        self._rebuild()
+        self._pending.reenter(self._isam, known)
+        held = weakly_held({key: known[key]})
         held.push_back(extra if extra is not None else gtsam.NonlinearFactorGraph())
         kind = {POSE: "pose", ROW: "row"}.get(key_kind(key), "object")
         self.issues[f"{kind} held by a weak prior: indeterminate in an iSAM2 update"] += 1
-        return self._pending.flush(self._isam, held)
+        try:
+            return self._pending.flush(self._isam, held)
+        except RuntimeError as again:
+            if extra is None or not fold:
+                raise
+            self.issues["a fold's marginal given up: indeterminate in an iSAM2 update"] += 1
+            instead = weakly_held({k: known[k] for k in extra.keyVector()})
+            return self._isolate(again, instead, fold=False)
 
     def _slots_piled_up(self) -> bool:
         """iSAM2 keeps a slot for every factor it ever held (issue 14): past slack x live

@@ -81,6 +81,13 @@ class PendingUpdate:
         insert_value(self._values, key, value)
         self._guess[key] = value
 
+    def reenter(self, isam: gtsam.ISAM2, values: dict[int, np.ndarray]) -> None:
+        """Those of the nodes `values` holds that iSAM2 lacks, entered again at them (an
+        iSAM2 rebuilt of the live factors lacks a node an update took all of those of)."""
+        for key, value in values.items():
+            if not isam.valueExists(key) and key not in self._guess:
+                self.enter(key, value)
+
     def guess(self, key: int) -> np.ndarray | None:
         """The initial value of a node entered since the last update, else None."""
         return self._guess.get(key)
@@ -91,6 +98,10 @@ class PendingUpdate:
 
     def has_nodes(self) -> bool:
         return bool(self._guess)
+
+    def factor_keys(self) -> set[int]:
+        """The nodes the pending factors touch."""
+        return {key for p in self._factors if p is not None for key in p[0].keys()}  # noqa: SIM118
 
     def drop_node(self, key: int) -> None:
         if self._values.exists(key):
