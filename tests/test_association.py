@@ -11,6 +11,7 @@ from agrislam.association import (
     informative_measurements,
     innovation_covariance,
     max_association_distance,
+    rivals_on_one_metric,
     semantic_term,
 )
 from agrislam.config import AssociationConfig, FieldSchema, SemanticsConfig
@@ -138,6 +139,23 @@ def test_pose_uncertainty_grows_with_distance_through_the_heading():
     cov = pose_uncertainty_at(np.zeros(3), pose_cov, np.array([[2.0, 0.0]]))[0]
     # a point 2 m ahead: x takes the pose's x variance, y its y variance + (2 m)^2 var(theta)
     np.testing.assert_allclose(cov, [[0.01, 0.0], [0.0, 0.04 + 4 * 0.001]])
+
+
+def test_a_detections_rivals_are_compared_on_one_metric():
+    """Objects A and B 0.16 m apart, B's covariance wider, C far off. A detection of A,
+    0.15 m off on A's far side (a robot's pose error), is nearer B in each object's own
+    metric; on the rivals' one metric it is A's. C keeps its own."""
+    placed = PlacedDetections(np.array([[-0.15, 0.0]]), (0.05**2 * np.eye(2))[None], [{}])
+    object_xy = np.array([[0.0, 0.0], [0.16, 0.0], [5.0, 0.0]])
+    object_cov = np.stack([0.1**2 * np.eye(2), 0.25**2 * np.eye(2), 0.3**2 * np.eye(2)])
+    own = innovation_covariance(placed, object_cov)
+    one = rivals_on_one_metric(own, placed.xy, object_xy, d_inter=0.15)
+    np.testing.assert_allclose(one[0, 0], (own[0, 0] + own[0, 1]) / 2)
+    np.testing.assert_allclose(one[0, 1], one[0, 0])
+    np.testing.assert_array_equal(one[0, 2], own[0, 2])  # beyond 3 d_inter
+    for covariance, chosen in ((own, 1), (one, 0)):
+        matrix = distance_term(placed.xy, object_xy, covariance, d_inter=0.01, gate_chi2=9.21)
+        assert assign(matrix)[0] == chosen
 
 
 def test_innovation_covariance_takes_the_tighter_of_absolute_and_relative():

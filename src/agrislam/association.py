@@ -29,6 +29,7 @@ FORBIDDEN = 1e6  # cost of an assignment the paper forbids (a_mn > 1)
 # detections, this many, seen from near and far (the first frame's alone: 0.08-0.23 m in the
 # arena, whose survey median is 0.15 m)
 D_INTER_SAMPLE = 500
+RIVAL_REACH = 3.0  # in d_inter: a detection's rivals, compared on one metric
 
 
 @dataclass(frozen=True, slots=True)
@@ -149,6 +150,21 @@ def innovation_covariance(
     trace = np.trace(relative, axis1=2, axis2=3) < np.trace(absolute, axis1=2, axis2=3)
     tighter = drift_known[None, :] & trace
     return np.where(tighter[..., None, None], relative, absolute)
+
+
+def rivals_on_one_metric(
+    innovation: np.ndarray, detection_xy: np.ndarray, object_xy: np.ndarray, d_inter: float
+) -> np.ndarray:
+    """(m, k, 2, 2) `innovation` with each detection's rivals, the candidates within
+    RIVAL_REACH d_inter of it, given their mean: among close neighbours the nearest in
+    the detection's own metric wins. Each with its own, an object whose covariance was
+    wider took a detection of its neighbour cheaply; robots back with their pose 0.2 m
+    off matched two landmarks 0.16 m apart the wrong way round for whole visits (issue 11)."""
+    d = np.linalg.norm(object_xy[None, :, :] - detection_xy[:, None, :], axis=2)
+    rivals = d < RIVAL_REACH * d_inter
+    share = rivals / np.maximum(rivals.sum(axis=1, keepdims=True), 1)
+    mean = np.einsum("mk,mkij->mij", share, innovation)
+    return np.where(rivals[..., None, None], mean[:, None], innovation)
 
 
 def association_matrix(

@@ -25,6 +25,7 @@ from agrislam.association import (
     innovation_covariance,
     landmark_association,
     max_association_distance,
+    rivals_on_one_metric,
 )
 from agrislam.births import Births
 from agrislam.config import AgrislamConfig, AssociationConfig, FieldSchema
@@ -370,16 +371,17 @@ class WorldModel:
         candidates = self.index.query(placed.xy, self._reach(placed))
         if len(candidates) == 0:
             return np.full(len(placed), -1)
-        object_cov = self.backend.object_covariances(candidates)
+        object_cov = self.backend.object_covariances(candidates)  # may solve: then positions
+        object_xy = self.backend.object_positions(candidates)
         innovation = None
         if cfg.innovation_gate:
-            innovation = innovation_covariance(
-                placed, object_cov, *self._drift_since_seen(robot, candidates, placed)
-            )
+            drift = self._drift_since_seen(robot, candidates, placed)
+            own = innovation_covariance(placed, object_cov, *drift)
+            innovation = rivals_on_one_metric(own, placed.xy, object_xy, cfg.d_inter)
         matrix = association_matrix(
             placed,
             candidates,
-            self.backend.object_positions(candidates),
+            object_xy,
             object_cov,
             self.beliefs,
             cfg,
