@@ -156,10 +156,10 @@ def rivals_on_one_metric(
     innovation: np.ndarray, detection_xy: np.ndarray, object_xy: np.ndarray, d_inter: float
 ) -> np.ndarray:
     """(m, k, 2, 2) `innovation` with each detection's rivals, the candidates within
-    RIVAL_REACH d_inter of it, given their mean: among close neighbours the nearest in
-    the detection's own metric wins. Each with its own, an object whose covariance was
-    wider took a detection of its neighbour cheaply; robots back with their pose 0.2 m
-    off matched two landmarks 0.16 m apart the wrong way round for whole visits (issue 11)."""
+    RIVAL_REACH d_inter of it, given their mean: close neighbours are measured alike and
+    the nearest wins. Each with its own, an object whose covariance was wider took a
+    detection of its neighbour cheaply; robots back with their pose 0.2 m off matched
+    two landmarks 0.16 m apart the wrong way round for whole visits (issue 11)."""
     d = np.linalg.norm(object_xy[None, :, :] - detection_xy[:, None, :], axis=2)
     rivals = d < RIVAL_REACH * d_inter
     share = rivals / np.maximum(rivals.sum(axis=1, keepdims=True), 1)
