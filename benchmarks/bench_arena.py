@@ -40,10 +40,10 @@ from rich.table import Table
 from scipy.optimize import linear_sum_assignment
 
 from agrislam.config import AgrislamConfig
-from agrislam.evaluation import association_counts, evaluate
+from agrislam.evaluation.metrics import association_counts, evaluate
 from agrislam.geometry.se2 import wrap_angle
-from agrislam.pipeline import RunResult, run_survey
 from agrislam.records import Detections, Record, TruthObject, TruthPose
+from agrislam.run.pipeline import RunResult, run_survey
 from agrislam.sim.arena import ArenaSimulator
 from agrislam.sim.config import ArenaConfig
 from agrislam.sim.range_bearing import true_range_bearing

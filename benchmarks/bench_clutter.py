@@ -5,7 +5,7 @@ Scenarios, each on the same seeds: the clean survey; 50 % clutter (one false det
 nothing for every two plant detections, `detector.clutter_fraction`); 20 % clutter and
 2 % gross range outliers (`detector.outlier_fraction`, moved 1-4 m along the ray). Per run:
 plants mapped, false objects (matched to no plant), duplicates, purity and completeness,
-all as the pipeline scores them (evaluation.py). Targets: with 50 % clutter >= 95 % mapped
+all as the pipeline scores them (evaluation/metrics.py). Targets: with 50 % clutter >= 95 % mapped
 and <= 2 % false objects; with 20 % clutter + 2 % outliers, mapped and false objects
 within 1 percentage point of the clean run of the same seed.
 
@@ -23,7 +23,7 @@ from rich.console import Console
 from rich.table import Table
 
 from agrislam.config import AgrislamConfig
-from agrislam.pipeline import run_survey
+from agrislam.run.pipeline import run_survey
 from agrislam.sim.config import SimConfig
 from agrislam.sim.simulator import Simulator
 from agrislam.world import WorldModel

@@ -25,9 +25,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from agrislam.backend import GraphBackend, RelativePosition, make_backend
 from agrislam.config import RowsConfig, SlamConfig
-from agrislam.geometry.backend import GraphBackend, RelativePosition, make_backend
-from agrislam.geometry.rows import RowTracker
+from agrislam.estimation.rows import RowTracker
 from agrislam.geometry.se2 import compose
 from agrislam.records import Detections, Meta, Odometry
 from agrislam.sim.config import DetectorConfig, FieldLayout, SimConfig

@@ -23,9 +23,9 @@ from rich.console import Console
 from rich.table import Table
 
 from agrislam.config import AgrislamConfig
-from agrislam.evaluation import evaluate
-from agrislam.pipeline import run_survey
+from agrislam.evaluation.metrics import evaluate
 from agrislam.records import GnssFix, TruthObject, TruthPose
+from agrislam.run.pipeline import run_survey
 from agrislam.sim.config import SimConfig
 from agrislam.sim.gnss_config import GnssSimConfig
 from agrislam.sim.simulator import Simulator

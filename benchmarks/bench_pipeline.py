@@ -22,12 +22,12 @@ from rich.console import Console
 from rich.table import Table
 
 from agrislam.config import AgrislamConfig, load_mapping
-from agrislam.evaluation import evaluate
-from agrislam.pipeline import run_survey
+from agrislam.evaluation.metrics import evaluate
+from agrislam.io.sources.jsonl import read_log
 from agrislam.records import TruthObject, TruthPose
+from agrislam.run.pipeline import run_survey
 from agrislam.sim.config import SimConfig
 from agrislam.sim.simulator import Simulator
-from agrislam.sources.jsonl import read_log
 from agrislam.world import WorldModel
 
 ROOT = Path(__file__).resolve().parents[1]

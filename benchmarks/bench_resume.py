@@ -35,7 +35,7 @@ from pathlib import Path
 import numpy as np
 
 from agrislam.config import AgrislamConfig
-from agrislam.sinks.sqlite import load_map
+from agrislam.io.sinks.sqlite import load_map
 
 TOLERANCE_M = 1e-6
 OVERHEAD_TARGET = 0.05

@@ -53,9 +53,9 @@ console = Console(width=170)
 def child(plants: int, seed: int, changes: dict[str, Any]) -> dict[str, Any]:
     """One survey, run here: the figures the parent prints (in a child process)."""
     from agrislam.config import AgrislamConfig
-    from agrislam.pipeline import run_survey
-    from agrislam.sources import open_source
-    from agrislam.sources.simulated import simulation_uri
+    from agrislam.io.sources import open_source
+    from agrislam.io.sources.simulated import simulation_uri
+    from agrislam.run.pipeline import run_survey
     from agrislam.world import WorldModel
 
     config = AgrislamConfig.model_validate(changes)

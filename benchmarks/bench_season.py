@@ -27,17 +27,17 @@ from pathlib import Path
 import numpy as np
 
 from agrislam.config import AgrislamConfig, FieldSchema
-from agrislam.evaluation import evaluate, match_objects
+from agrislam.evaluation.metrics import evaluate, match_objects
 from agrislam.geometry import se2
-from agrislam.pipeline import run_survey
+from agrislam.io.sinks.history import History, plant_rows, write_history
+from agrislam.io.sinks.sqlite import save_map
+from agrislam.io.sources.sync import synchronise
 from agrislam.records import Detections, Meta, Odometry, TruthObject, TruthPose
-from agrislam.season_outputs import load_season
+from agrislam.run.pipeline import run_survey
+from agrislam.run.season_outputs import load_season
 from agrislam.sim.config import SimConfig
 from agrislam.sim.season import SeasonSimulator, season_config
-from agrislam.sinks.history import History, plant_rows, write_history
-from agrislam.sinks.sqlite import save_map
 from agrislam.snapshot import MapSnapshot, ObjectMap
-from agrislam.sources.sync import synchronise
 from agrislam.world import WorldModel
 
 DAYS = [0.0, 7.0, 14.0]

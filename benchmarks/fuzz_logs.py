@@ -40,12 +40,12 @@ from typing import Any
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests"))  # the mutations the fuzz tests use
 
-import agrislam.pipeline as pipeline  # noqa: E402
-from agrislam.pipeline import RunError, run_survey  # noqa: E402
+import agrislam.run.pipeline as pipeline  # noqa: E402
+from agrislam.io.sinks.jsonl import record_to_json  # noqa: E402
+from agrislam.io.sources.jsonl import LogError, read_log  # noqa: E402
+from agrislam.run.pipeline import RunError, run_survey  # noqa: E402
 from agrislam.sim.config import SimConfig  # noqa: E402
 from agrislam.sim.simulator import Simulator  # noqa: E402
-from agrislam.sinks.jsonl import record_to_json  # noqa: E402
-from agrislam.sources.jsonl import LogError, read_log  # noqa: E402
 from agrislam.world import WorldModel  # noqa: E402
 from log_mutations import N_KINDS, as_log, mutate  # noqa: E402
 

@@ -70,12 +70,12 @@ def main() -> None:
     parser.add_argument("--trace", action="store_true", help="also tracemalloc each writer")
     args = parser.parse_args()
 
-    from agrislam import pipeline
     from agrislam.config import AgrislamConfig, OutputsConfig
-    from agrislam.evaluation import write_metrics
-    from agrislam.sinks import csv, foxglove, report, ros_map
-    from agrislam.sources import open_source
-    from agrislam.sources.simulated import simulation_uri
+    from agrislam.evaluation.metrics import write_metrics
+    from agrislam.io.sinks import csv, foxglove, report, ros_map
+    from agrislam.io.sources import open_source
+    from agrislam.io.sources.simulated import simulation_uri
+    from agrislam.run import pipeline
     from agrislam.world import WorldModel
 
     start = settle()

@@ -96,7 +96,7 @@ def test_the_simulated_survey_as_an_mcap_bag_gives_the_same_map(small_run, tmp_p
     assert runner.invoke(app, [*args, "--record", str(bag)]).exit_code == 0
     result = runner.invoke(app, ["run", str(bag), "--out", str(tmp_path / "b")])
     assert result.exit_code == 0, result.output
-    from agrislam.sinks.sqlite import load_map
+    from agrislam.io.sinks.sqlite import load_map
 
     jsonl_map, bag_map = load_map(out / "map.sqlite"), load_map(tmp_path / "b" / "map.sqlite")
     assert np.array_equal(jsonl_map.objects.ids, bag_map.objects.ids)
@@ -140,9 +140,9 @@ def test_run_names_what_it_reads_when_the_input_is_unknown(tmp_path):
 
 @pytest.fixture(scope="module")
 def small_log(tmp_path_factory):
+    from agrislam.io.sinks.jsonl import write_log
     from agrislam.sim.config import SimConfig
     from agrislam.sim.simulator import Simulator
-    from agrislam.sinks.jsonl import write_log
 
     log = tmp_path_factory.mktemp("log") / "small.jsonl"
     cfg = SimConfig.model_validate({"field": {"n_plants": 30, "n_rows": 3}, "seed": 2})

@@ -6,8 +6,10 @@ import itertools
 import numpy as np
 import pytest
 
-from agrislam.association import D_INTER_SAMPLE
+from agrislam.association.gnn import D_INTER_SAMPLE
 from agrislam.config import AgrislamConfig
+from agrislam.io.sources import open_source
+from agrislam.io.sources.simulated import simulation_uri
 from agrislam.maintenance import AfterFold
 from agrislam.records import (
     Detection,
@@ -18,8 +20,6 @@ from agrislam.records import (
     Odometry,
     RobotStart,
 )
-from agrislam.sources import open_source
-from agrislam.sources.simulated import simulation_uri
 from agrislam.world import WorldModel
 
 PLANTS = np.array([[1.0, 0.0], [1.5, 0.0], [2.0, 0.0], [1.0, 1.0], [1.5, 1.0], [2.0, 1.0]])

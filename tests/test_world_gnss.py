@@ -11,8 +11,8 @@ from pathlib import Path
 import pytest
 
 from agrislam.config import AgrislamConfig
-from agrislam.pipeline import run_survey
 from agrislam.records import GnssFix, Meta
+from agrislam.run.pipeline import run_survey
 from agrislam.sim.config import SimConfig
 from agrislam.sim.simulator import Simulator
 from agrislam.world import WorldModel

@@ -22,12 +22,12 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from rich.table import Table
 
 from agrislam import __version__
-from agrislam.checkpoint import Checkpoints, InputFingerprint, config_identity
 from agrislam.config import AgrislamConfig, load_mapping
-from agrislam.pipeline import RunError, RunResult, describe, run_survey
+from agrislam.io.sinks.run_folder import RunFolder
+from agrislam.io.sources import Source, SourceError, open_source
 from agrislam.records import Record
-from agrislam.sinks.run_folder import RunFolder
-from agrislam.sources import Source, SourceError, open_source
+from agrislam.run.checkpoint import Checkpoints, InputFingerprint, config_identity
+from agrislam.run.pipeline import RunError, RunResult, describe, run_survey
 from agrislam.world import WorldModel
 
 app = typer.Typer(
@@ -105,7 +105,7 @@ def simulate(
     ] = None,
 ) -> None:
     """Simulate a field survey and map it (default: the paper's 400-plant simulation)."""
-    from agrislam.sources.simulated import simulation_uri
+    from agrislam.io.sources.simulated import simulation_uri
 
     if days:
         _season(days + _numbers(ctx.args), preset, plants, seed, out, config, force)
@@ -135,9 +135,9 @@ def _season(
 ) -> None:
     """Each survey day as a log of its own (OUT/day_007.jsonl) mapped into OUT/day_007/,
     every day after the first continuing the previous day's map.sqlite."""
+    from agrislam.io.sinks.jsonl import write_log
     from agrislam.sim.config import SimConfig
     from agrislam.sim.season import SeasonSimulator, season_config
-    from agrislam.sinks.jsonl import write_log
 
     if sorted(days) != days or len(set(days)) != len(days):
         _fail(f"--days must increase, got {days}", 2)
@@ -167,9 +167,9 @@ def history(
     ] = None,
 ) -> None:
     """A saved map's season: its surveys and what changed, or one plant's history."""
-    from agrislam.sinks.history import read_history
-    from agrislam.sinks.season_figures import growth_attribute, write_season_figure
-    from agrislam.sinks.sqlite import load_map
+    from agrislam.io.sinks.history import read_history
+    from agrislam.io.sinks.season_figures import growth_attribute, write_season_figure
+    from agrislam.io.sinks.sqlite import load_map
 
     with _user_errors():
         hist = read_history(map_file)
@@ -483,7 +483,7 @@ def _run(
         task = progress.add_task(what, total=total)
         season = None
         if prior_map is not None:
-            from agrislam.season_outputs import load_season
+            from agrislam.run.season_outputs import load_season
 
             season = load_season(prior_map, cfg)
         result = run_survey(
@@ -508,11 +508,11 @@ def _run(
 
 def _record(records: list[Record], path: Path) -> None:
     if path.suffix == ".jsonl":
-        from agrislam.sinks.jsonl import write_log
+        from agrislam.io.sinks.jsonl import write_log
 
         write_log(records, path)
     else:
-        from agrislam.sinks.rosbag import write_survey_bag
+        from agrislam.io.sinks.rosbag import write_survey_bag
 
         write_survey_bag(records, path)
 
@@ -541,7 +541,7 @@ def _summary(result: RunResult, out: Path) -> None:
     for issue, count in sorted(result.issues.items()):
         console.print(f"[yellow]{count} x {issue}[/]")
     if result.metrics is not None:
-        from agrislam.evaluation import print_metrics
+        from agrislam.evaluation.metrics import print_metrics
 
         print_metrics(result.metrics, console)
     for name, why in result.output_errors.items():

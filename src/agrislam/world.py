@@ -13,10 +13,11 @@ from __future__ import annotations
 import dataclasses
 from collections import Counter
 from dataclasses import dataclass
+from typing import Any, NoReturn
 
 import numpy as np
 
-from agrislam.association import (
+from agrislam.association.gnn import (
     D_INTER_SAMPLE,
     PlacedDetections,
     assign,
@@ -27,32 +28,31 @@ from agrislam.association import (
     max_association_distance,
     rivals_on_one_metric,
 )
-from agrislam.births import Births
+from agrislam.association.loop_closure import RECENT_S, LoopCloser
+from agrislam.association.range_outliers import RANGE_ERRORS, RangeOutliers
+from agrislam.association.rejoin import Rejoiner
+from agrislam.backend import make_backend
 from agrislam.config import AgrislamConfig, AssociationConfig, FieldSchema
+from agrislam.estimation.depth_bias import DepthBiasEstimator
+from agrislam.estimation.gnss import GnssFixes
+from agrislam.estimation.noise_calibration import NoiseCalibration
+from agrislam.estimation.rows import RowTracker
+from agrislam.frontend.odometry import OdometryChain
 from agrislam.geometry import se2
-from agrislam.geometry.backend import make_backend
-from agrislam.geometry.calibration import NoiseCalibration
-from agrislam.geometry.depth_bias import DepthBiasEstimator
 from agrislam.geometry.drift import since_seen
-from agrislam.geometry.gnss import GnssFixes
 from agrislam.geometry.noise import SensorModel
-from agrislam.geometry.odometry import OdometryChain
-from agrislam.geometry.rows import RowTracker
-from agrislam.index_upkeep import IndexUpkeep
-from agrislam.loop_closure import RECENT_S, LoopCloser
 from agrislam.maintenance import AfterFold, Existence, MaintenanceResult, Merger, prune_due
-from agrislam.objects import ObjectTable
-from agrislam.prior.backend import PriorBackend
-from agrislam.prior.map import PriorMap
-from agrislam.range_outliers import RANGE_ERRORS, RangeOutliers
+from agrislam.mapping.births import Births
+from agrislam.mapping.index_upkeep import IndexUpkeep
+from agrislam.mapping.objects import ObjectTable
+from agrislam.mapping.spatial_index import SpatialIndex
 from agrislam.records import Detection, Detections, FieldPrior, GnssFix, Meta, Odometry, Record
-from agrislam.rejoin import Rejoiner
-from agrislam.released import Released
+from agrislam.season.prior_backend import PriorBackend
+from agrislam.season.prior_map import PriorMap
 from agrislam.semantics.beliefs import BeliefTable
 from agrislam.semantics.heuristic import interest_surface
 from agrislam.snapshot import STATUS_MERGED, STATUS_PRUNED, MapSnapshot, ObjectMap, Trajectory
-from agrislam.spatial_index import SpatialIndex
-from agrislam.stage_timer import StageTimer
+from agrislam.timing import StageTimer
 
 # what each timed stage of a step does (DESIGN.md "The pipeline, one step")
 STAGES = (
@@ -72,6 +72,28 @@ STAGES = (
 )
 # the parts `release` lets go of
 RELEASED = ("backend", "objects", "index", "rows", "robots", "existence", "rejoiner", "loops")
+
+
+class Released:
+    """A released part of a world model: any use of it says what happened."""
+
+    def __init__(self, part: str) -> None:
+        self._part = part
+
+    def _refuse(self) -> NoReturn:
+        raise RuntimeError(
+            f"the world model's {self._part!r} was released once the run's map was taken "
+            "(WorldModel.release): it maps and answers nothing more"
+        )
+
+    def __getattr__(self, name: str) -> Any:
+        self._refuse()
+
+    def __len__(self) -> int:
+        self._refuse()
+
+    def __getitem__(self, key: Any) -> Any:
+        self._refuse()
 
 
 @dataclass(slots=True)
@@ -417,7 +439,7 @@ class WorldModel:
     ) -> None:
         """The frame's sightings, in the robot's dead-reckoning frame: with the robot's
         earlier sightings of the objects around, they scale the noise
-        (geometry/calibration.py); then the objects were last seen here."""
+        (estimation/noise_calibration.py); then the objects were last seen here."""
         chain, index = self.robots[robot], self._robot_index(robot)
         configured = placed.robot_cov / self.noise.scale.variance[0]
         xy, cov = se2.to_map_frame(chain.pose, placed.robot_xy, configured)

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from agrislam.association import (
+from agrislam.association.gnn import (
     PlacedDetections,
     assign,
     association_matrix,

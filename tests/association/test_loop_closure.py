@@ -1,4 +1,5 @@
-"""A returning robot closes the loop (loop_closure.py): its newest objects, moved far past
+"""A returning robot closes the loop (association/loop_closure.py): its newest objects,
+moved far past
 the association's gate by its drift, merge into the old objects of the same place when one
 rigid motion puts enough of them there, and no other place fits about as well."""
 
@@ -7,11 +8,11 @@ from collections import Counter
 import numpy as np
 import pytest
 
-from agrislam.births import Births
+from agrislam.association.loop_closure import CLOSED, MIN_FRAMES, RECENT_S, LoopCloser
 from agrislam.config import SemanticsConfig
 from agrislam.geometry import se2
-from agrislam.loop_closure import CLOSED, MIN_FRAMES, RECENT_S, LoopCloser
-from agrislam.objects import ObjectTable
+from agrislam.mapping.births import Births
+from agrislam.mapping.objects import ObjectTable
 from agrislam.semantics.beliefs import BeliefTable
 
 ROBOT = 0

@@ -1,13 +1,12 @@
-"""Range outliers (range_outliers.py): a detection that would start a new object on the ray
+"""Range outliers (association/range_outliers.py): a detection that would start a new
+object on the ray
 of a settled object the frame did not detect is that object's, with a wrong range, and is
 not mapped; a young object whose every detection lay on such a ray is pruned at the end."""
 
 import numpy as np
 
-from agrislam.association import PlacedDetections
-from agrislam.config import AgrislamConfig, SemanticsConfig
-from agrislam.objects import ObjectTable
-from agrislam.range_outliers import (
+from agrislam.association.gnn import PlacedDetections
+from agrislam.association.range_outliers import (
     JUDGED_AFTER_S,
     LANDMARK_AFTER_S,
     OUTLIER_MAX_MEAS,
@@ -16,10 +15,12 @@ from agrislam.range_outliers import (
     TRUST_SHARE,
     RangeOutliers,
 )
+from agrislam.config import AgrislamConfig, SemanticsConfig
+from agrislam.mapping.objects import ObjectTable
+from agrislam.mapping.spatial_index import SpatialIndex
 from agrislam.records import Detection, Detections, Meta, RobotStart
 from agrislam.semantics.beliefs import BeliefTable
 from agrislam.snapshot import STATUS_MERGED
-from agrislam.spatial_index import SpatialIndex
 from agrislam.world import WorldModel
 
 ROBOT = np.array([0.0, 0.0, 0.0])  # at the origin, facing +x

@@ -1,15 +1,15 @@
-"""A lost robot rejoins the map (rejoin.py): a frame whose detections start objects near
+"""A lost robot rejoins the map (association/rejoin.py): a frame whose detections start objects near
 settled ones that a small correction of the robot's pose would explain goes to those."""
 
 from collections import Counter
 
 import numpy as np
 
-from agrislam.association import PlacedDetections
-from agrislam.births import Births
+from agrislam.association.gnn import PlacedDetections
+from agrislam.association.rejoin import LOST_WINDOW_S, REJOINED, Rejoiner
 from agrislam.geometry import se2
-from agrislam.rejoin import LOST_WINDOW_S, REJOINED, Rejoiner
-from agrislam.spatial_index import SpatialIndex
+from agrislam.mapping.births import Births
+from agrislam.mapping.spatial_index import SpatialIndex
 
 ROBOT = np.array([0.0, 0.0, 0.0])
 # settled landmarks 3-4 m ahead; the robot's true pose is ROBOT

@@ -5,18 +5,17 @@ the dataset does: purity and completeness of at least 0.95."""
 from __future__ import annotations
 
 from itertools import takewhile
-from pathlib import Path
 
 import pytest
 
+from agrislam.association.loop_closure import CLOSED
 from agrislam.config import AgrislamConfig, load_mapping
-from agrislam.loop_closure import CLOSED
-from agrislam.pipeline import run_survey
-from agrislam.sources.jsonl import read_log
+from agrislam.io.sources.jsonl import read_log
+from agrislam.run.pipeline import run_survey
 from agrislam.world import WorldModel
+from paths import REPO, SHARED_DATA
 
-ROOT = Path(__file__).resolve().parents[1]
-LOG = ROOT.parent / "shared" / "data" / "victoria_park" / "victoria_park.jsonl"
+LOG = SHARED_DATA / "victoria_park" / "victoria_park.jsonl"
 
 pytestmark = pytest.mark.skipif(not LOG.exists(), reason="Victoria Park data not present")
 
@@ -24,7 +23,7 @@ pytestmark = pytest.mark.skipif(not LOG.exists(), reason="Victoria Park data not
 def run(until: float, example: bool = True) -> dict:
     """The association's scores over the log's first `until` seconds, with the example
     config or with none, and the run's issues and noise calibration report."""
-    mapping = load_mapping(ROOT / "examples" / "victoria_park.yaml") if example else {}
+    mapping = load_mapping(REPO / "examples" / "victoria_park.yaml") if example else {}
     records = takewhile(lambda r: getattr(r, "t", 0.0) <= until, read_log(LOG))
     result = run_survey(records, WorldModel(AgrislamConfig.model_validate(mapping)))
     return {**result.metrics["association"], "issues": result.issues, "noise": result.noise}

@@ -10,17 +10,17 @@ import gtsam
 import numpy as np
 import pytest
 
-from agrislam.config import RowsConfig, SlamConfig
-from agrislam.geometry.backend import (
+from agrislam.backend import (
     RangeBearing,
     RelativePosition,
     detection_covariance,
     make_backend,
 )
-from agrislam.geometry.batch import BatchBackend
-from agrislam.geometry.conditioning import FREE_SIGMA
-from agrislam.geometry.incremental import IncrementalBackend
-from agrislam.geometry.marginal_cache import STALE
+from agrislam.backend.batch import BatchBackend
+from agrislam.backend.incremental.backend import IncrementalBackend
+from agrislam.backend.incremental.conditioning import FREE_SIGMA
+from agrislam.backend.incremental.marginal_cache import STALE
+from agrislam.config import RowsConfig, SlamConfig
 from agrislam.geometry.se2 import rotation
 from benchmark_module import load_benchmark
 
@@ -357,7 +357,7 @@ def test_a_large_loop_closure_refines_the_folded_history():
 def test_a_loop_closure_in_a_large_graph_does_not_stall_the_step_with_a_batch(monkeypatch):
     """Past `turn_refine_max_factors` the refine a turn starts mid-survey relinearises the
     keyframe graph only (bounded work); an explicit refine() still solves the batch."""
-    import agrislam.geometry.incremental as incremental
+    import agrislam.backend.incremental.backend as incremental
 
     batches = []
     solve = incremental.solve
@@ -454,7 +454,7 @@ def test_a_folds_covariances_wait_a_step_and_do_not_depend_on_when_they_are_read
 def lone_on_a_bearing(g) -> tuple[int, int]:
     """An object held by one bearing from the robot's latest pose, as a row is whose
     members left: the next update is indeterminate near it. Returns the pose and it."""
-    from agrislam.geometry.isam_state import Entry
+    from agrislam.backend.incremental.isam_state import Entry
 
     pose, lone = g.graph.robot("r").keys[-1], gtsam.symbol("l", 999)
     g._pending.enter(lone, np.array([17.0, 1.0]))
@@ -643,7 +643,7 @@ def test_isam2_is_rebuilt_when_the_slots_of_factors_it_let_go_pile_up(small_surv
     """iSAM2 keeps a slot for every factor it ever held: past slack x live + floor it is
     rebuilt from the live factors half way between folds (issue 14), and the map is the
     same."""
-    import agrislam.geometry.incremental as incremental
+    import agrislam.backend.incremental.backend as incremental
 
     b, survey = small_survey
     maps, slots = {}, {}
@@ -662,7 +662,7 @@ def test_isam2_is_rebuilt_when_the_slots_of_factors_it_let_go_pile_up(small_surv
 
 
 def test_object_keys_are_gtsams_symbols_and_unknown_ids_are_named():
-    from agrislam.geometry.graph import SurveyGraph, object_key, object_keys
+    from agrislam.backend.graph import SurveyGraph, object_key, object_keys
 
     ids = np.array([0, 7, 123_456_789])
     assert object_keys(ids) == [object_key(int(i)) for i in ids]
@@ -707,7 +707,7 @@ def test_a_fold_whose_objects_cannot_be_given_their_keyframe_gives_them_a_weak_c
     """Where a fold's deferred job cannot condition its objects on their keyframe (an object
     outside the keyframe's part of the graph, after a merge of objects far apart: Victoria
     Park, issue 11), they get FREE_SIGMA and an issue; the run goes on."""
-    import agrislam.geometry.conditioning as conditioning
+    import agrislam.backend.incremental.conditioning as conditioning
 
     def outside(graph, point, keys):
         raise RuntimeError(f"objects {gtsam.DefaultKeyFormatter(keys[0])} are not in the graph")

@@ -6,10 +6,10 @@ from __future__ import annotations
 import gtsam
 import numpy as np
 
+from agrislam.backend import RelativePosition, detection_covariance, make_backend
+from agrislam.backend.incremental.conditioning import FREE_SIGMA, components, indeterminate_key
 from agrislam.config import AgrislamConfig, RowsConfig, SlamConfig
-from agrislam.geometry.backend import RelativePosition, detection_covariance, make_backend
-from agrislam.geometry.conditioning import FREE_SIGMA, components, indeterminate_key
-from agrislam.pipeline import run_survey
+from agrislam.run.pipeline import run_survey
 from agrislam.sim.arena import ArenaSimulator
 from agrislam.sim.config import ArenaConfig
 from agrislam.world import WorldModel
@@ -82,7 +82,7 @@ def test_five_robots_sharing_landmarks_fold_their_windows_without_stopping():
 
 
 def test_a_refine_that_gtsam_cannot_solve_is_skipped_and_the_map_kept(monkeypatch):
-    import agrislam.geometry.incremental as incremental
+    import agrislam.backend.incremental.backend as incremental
 
     g = make_backend(SlamConfig(window=2, refine_turn_deg=0.0), RowsConfig())
     g.add_robot("r", np.zeros(3), TIGHT)

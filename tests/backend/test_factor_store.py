@@ -1,4 +1,4 @@
-"""The survey graph's factors as rows of arrays (geometry/factor_store.py): what goes in
+"""The survey graph's factors as rows of arrays (backend/factor_store.py): what goes in
 comes out bit for bit, ids are stable, and the factors of a node are found after removals
 (merges and prunes) as they were with a set per node."""
 
@@ -13,7 +13,7 @@ from collections import Counter
 import numpy as np
 import pytest
 
-from agrislam.geometry.factor_store import RESERVED_ROWS, Factor, FactorStore
+from agrislam.backend.factor_store import RESERVED_ROWS, Factor, FactorStore
 
 
 def odometry(a: int, b: int, dx: float) -> Factor:

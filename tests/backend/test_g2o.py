@@ -7,15 +7,15 @@ import gtsam
 import numpy as np
 import pytest
 
-from agrislam.config import RowsConfig, SlamConfig
-from agrislam.geometry.backend import (
+from agrislam.backend import (
     RangeBearing,
     RelativePosition,
     detection_covariance,
     make_backend,
 )
-from agrislam.geometry.g2o import read_g2o, write_g2o
-from agrislam.geometry.graph import DETECTION, ODOMETRY, ROW_MEMBER, ROW_SPACING
+from agrislam.backend.g2o import read_g2o, write_g2o
+from agrislam.backend.graph import DETECTION, ODOMETRY, ROW_MEMBER, ROW_SPACING
+from agrislam.config import RowsConfig, SlamConfig
 
 PLANTS = np.array([[1.0, 0.02], [1.5, 1.01], [2.0, -0.01], [2.5, 0.98], [0.8, 2.03]])
 

@@ -1,9 +1,9 @@
-"""geometry/graph.py's robot chain: pose times in an array, pose keys computed."""
+"""backend/graph.py's robot chain: pose times in an array, pose keys computed."""
 
 import numpy as np
 import pytest
 
-from agrislam.geometry.graph import RobotChain, pose_key
+from agrislam.backend.graph import RobotChain, pose_key
 
 
 def test_a_chain_numbers_its_pose_keys_in_the_order_driven():
@@ -26,7 +26,7 @@ def test_key_kind_and_index_read_gtsam_symbols() -> None:
     """key_kind / key_index read a key's bits as gtsam.Symbol does, for plain and numpy ints."""
     import gtsam
 
-    from agrislam.geometry.graph import key_index, key_indices, key_kind
+    from agrislam.backend.graph import key_index, key_indices, key_kind
 
     for letter, index in [("x", 0), ("l", 123_456_789), ("r", 5), ("x", 3 * (1 << 40) + 7)]:
         key = gtsam.symbol(letter, index)

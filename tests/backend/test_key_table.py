@@ -1,10 +1,10 @@
-"""geometry/key_table.py: an integer per graph node, as a dict would hold it, in arrays."""
+"""backend/key_table.py: an integer per graph node, as a dict would hold it, in arrays."""
 
 import numpy as np
 import pytest
 
-from agrislam.geometry.graph import object_key, pose_key, row_key
-from agrislam.geometry.key_table import MISSING, KeyTable
+from agrislam.backend.graph import object_key, pose_key, row_key
+from agrislam.backend.key_table import MISSING, KeyTable
 
 
 def test_a_key_table_reads_and_writes_as_a_dict_does():

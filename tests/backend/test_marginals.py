@@ -7,8 +7,8 @@ import gtsam
 import numpy as np
 import pytest
 
-from agrislam.geometry.conditioning import indeterminate_key, marginal_covariances
-from agrislam.geometry.graph import object_key, pose_key
+from agrislam.backend.graph import object_key, pose_key
+from agrislam.backend.incremental.conditioning import indeterminate_key, marginal_covariances
 
 rng = np.random.default_rng(4)
 ODOMETRY = gtsam.noiseModel.Diagonal.Sigmas([0.05, 0.02, 0.01])

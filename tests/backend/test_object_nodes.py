@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from agrislam.geometry.object_nodes import ObjectNodes
+from agrislam.backend.object_nodes import ObjectNodes
 
 
 def test_behaves_as_the_dict_it_replaces_through_adds_removals_and_compaction():

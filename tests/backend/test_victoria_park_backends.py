@@ -17,14 +17,13 @@ import gtsam
 import numpy as np
 import pytest
 
+from agrislam.backend import RangeBearing, make_backend
 from agrislam.config import RowsConfig, SlamConfig
-from agrislam.geometry.backend import RangeBearing, make_backend
 from agrislam.geometry.se2 import compose
+from paths import SHARED_DATA
 
 # the shared folder stands beside the repository (as in CI)
-DATA = (
-    Path(__file__).resolve().parents[2] / "shared" / "data" / "victoria_park" / "victoria_park.txt"
-)
+DATA = SHARED_DATA / "victoria_park" / "victoria_park.txt"
 START_SIGMA = np.array([1e-3, 1e-3, 1e-4])  # as the dataset's survey log (meta) has it
 TOLERANCE = 0.05  # m RMS
 

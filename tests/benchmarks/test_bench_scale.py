@@ -1,13 +1,10 @@
 """benchmarks/bench_scale.py's step ratio (issue 14): the smallest survey runs beside the
 larger one, so that both are timed on the machine of the same moment."""
 
-from pathlib import Path
-
 import numpy as np
 
 from benchmark_module import load_benchmark
-
-SRC = Path(__file__).parents[1] / "src"
+from paths import SRC
 
 
 def test_the_small_survey_runs_over_and_over_beside_the_large_one():

@@ -1,4 +1,4 @@
-"""The GNSS factor (geometry/gnss.py): error and Jacobian, lever arm, weighting, gate, and
+"""The GNSS factor (estimation/gnss.py): error and Jacobian, lever arm, weighting, gate, and
 that float fixes and outliers do not move a map held by RTK fixed fixes, on both back ends."""
 
 from __future__ import annotations
@@ -9,17 +9,11 @@ import gtsam
 import numpy as np
 import pytest
 
+from agrislam.backend import make_backend
+from agrislam.backend.gnss_factor import antenna_jacobian, antenna_position, gnss_factor
 from agrislam.config import GnssConfig, RowsConfig, SlamConfig
-from agrislam.geometry.backend import make_backend
+from agrislam.estimation.gnss import GnssFixes, kernel_width, weighted_covariance
 from agrislam.geometry.geodesy import MapFrame
-from agrislam.geometry.gnss import (
-    GnssFixes,
-    antenna_jacobian,
-    antenna_position,
-    gnss_factor,
-    kernel_width,
-    weighted_covariance,
-)
 from agrislam.records import Anchor, GnssFix
 
 ANCHOR = Anchor(51.4488, 5.4905, 20.0, 0.0)
@@ -142,7 +136,7 @@ def test_first_good_fix_anchors_a_survey_without_anchor() -> None:
 
 
 def test_a_graph_with_gnss_fixes_round_trips_through_g2o(tmp_path) -> None:
-    from agrislam.geometry.g2o import read_g2o, write_g2o
+    from agrislam.backend.g2o import read_g2o, write_g2o
 
     be = make_backend(SlamConfig(backend="batch"), RowsConfig())
     be.add_robot("r1", np.zeros(3), np.array([1.0, 1.0, 0.1]), 0.0)

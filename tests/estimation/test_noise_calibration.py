@@ -1,17 +1,15 @@
-"""Noise that calibrates itself (geometry/calibration.py, issue 11): the variance factors
+"""Noise that calibrates itself (estimation/noise_calibration.py, issue 11): the variance factors
 from pairs of sightings, robust to wrong pairs, bounded, and applied to odometry parts."""
 
 from __future__ import annotations
 
 from itertools import takewhile
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 from agrislam.config import AgrislamConfig, CalibrationConfig
-from agrislam.geometry import se2
-from agrislam.geometry.calibration import (
+from agrislam.estimation.noise_calibration import (
     ANCHOR_SPAN,
     FISHER_ITERATIONS,
     PAIRS_A_CALL,
@@ -22,11 +20,13 @@ from agrislam.geometry.calibration import (
     odometry_parts,
     pair_components,
 )
-from agrislam.pipeline import run_survey
+from agrislam.geometry import se2
+from agrislam.io.sources.jsonl import read_log
+from agrislam.run.pipeline import run_survey
 from agrislam.sim.arena import ArenaSimulator
 from agrislam.sim.config import ArenaConfig
-from agrislam.sources.jsonl import read_log
 from agrislam.world import WorldModel
+from paths import SHARED_DATA
 
 Q = np.array([[4e-4, 1e-5, 2e-5], [1e-5, 1e-4, 0.0], [2e-5, 0.0, 9e-6]])
 
@@ -232,7 +232,7 @@ def test_victoria_park_finds_its_heading_noise_without_a_config():
     hand): in its first 2000 s the default config estimates a factor in the hand tuning's
     range from its own re-sightings (4.2 from consecutive sightings alone, 9.6 with
     anchors of any span: the car's drift over a long absence is mostly bias)."""
-    log = Path(__file__).resolve().parents[2] / "shared/data/victoria_park/victoria_park.jsonl"
+    log = SHARED_DATA / "victoria_park" / "victoria_park.jsonl"
     if not log.exists():
         pytest.skip("Victoria Park data not present")
     records = takewhile(lambda r: getattr(r, "t", 0.0) <= 2000.0, read_log(log))

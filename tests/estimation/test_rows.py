@@ -8,17 +8,17 @@ import math
 import numpy as np
 import pytest
 
+from agrislam.backend import RelativePosition, detection_covariance, make_backend
+from agrislam.backend.graph import ROW_MEMBER, ROW_SPACING
 from agrislam.config import RowsConfig, SlamConfig
-from agrislam.geometry.backend import RelativePosition, detection_covariance, make_backend
-from agrislam.geometry.graph import ROW_MEMBER, ROW_SPACING
-from agrislam.geometry.rows import (
+from agrislam.estimation.rows import (
     RowTracker,
     ambiguity,
     fit_rows,
     lattice_offset,
     periodicity,
-    wrap_row_angle,
 )
+from agrislam.geometry.se2 import wrap_row_angle
 from agrislam.records import FieldPrior
 from benchmark_module import load_benchmark
 

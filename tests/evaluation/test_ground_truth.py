@@ -1,6 +1,6 @@
 import numpy as np
 
-from agrislam.ground_truth import TruthObjects
+from agrislam.evaluation.ground_truth import TruthObjects
 from agrislam.records import TruthObject
 
 

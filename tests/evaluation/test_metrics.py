@@ -6,7 +6,8 @@ import pytest
 from rich.console import Console
 
 from agrislam.config import FieldSchema
-from agrislam.evaluation import (
+from agrislam.evaluation.ground_truth import TruthObjects
+from agrislam.evaluation.metrics import (
     association_scores,
     default_radius,
     evaluate,
@@ -17,7 +18,6 @@ from agrislam.evaluation import (
     truth_trajectories,
     write_metrics,
 )
-from agrislam.ground_truth import TruthObjects
 from agrislam.records import TruthObject, TruthPose
 from agrislam.snapshot import MapSnapshot, ObjectMap, Trajectory
 

@@ -7,8 +7,8 @@ import gtsam
 import numpy as np
 import pytest
 
+from agrislam.backend import detection_covariance
 from agrislam.config import SlamConfig
-from agrislam.geometry.backend import detection_covariance
 from agrislam.geometry.noise import (
     check_covariance,
     one_direction,

@@ -11,15 +11,15 @@ from agrislam.config import AgrislamConfig, MaintenanceConfig, SensorDefaults
 from agrislam.geometry.noise import SensorModel
 from agrislam.geometry.view_area import ViewArea, in_robot_frames, log_odds_absent
 from agrislam.maintenance import Existence
-from agrislam.objects import ObjectTable
-from agrislam.pipeline import run_survey
+from agrislam.mapping.objects import ObjectTable
+from agrislam.mapping.spatial_index import SpatialIndex
 from agrislam.records import Detection
+from agrislam.run.pipeline import run_survey
 from agrislam.semantics.beliefs import BeliefTable
 from agrislam.sim.config import SimConfig
 from agrislam.sim.detector import Detector
 from agrislam.sim.field import make_field
 from agrislam.sim.simulator import Simulator
-from agrislam.spatial_index import SpatialIndex
 from agrislam.world import WorldModel
 
 PAPER = {

@@ -8,9 +8,9 @@ import numpy as np
 
 from agrislam.config import SemanticsConfig
 from agrislam.maintenance import CROWD_MIN_FRAMES, TOGETHER_SHARE, Merger
-from agrislam.objects import ObjectTable
+from agrislam.mapping.objects import ObjectTable
+from agrislam.mapping.spatial_index import SpatialIndex
 from agrislam.semantics.beliefs import BeliefTable
-from agrislam.spatial_index import SpatialIndex
 
 XY = np.array([[0.0, 0.0], [0.1, 0.0]])  # two objects a range sigma apart
 D_INTER = 0.2

@@ -1,9 +1,9 @@
-"""The object table (objects.py): one owner of every object's lifecycle and sightings."""
+"""The object table (mapping/objects.py): one owner of every object's lifecycle and sightings."""
 
 import numpy as np
 
 from agrislam.config import SemanticsConfig
-from agrislam.objects import ObjectTable
+from agrislam.mapping.objects import ObjectTable
 from agrislam.semantics.beliefs import BeliefTable
 from agrislam.snapshot import STATUS_ACTIVE, STATUS_MERGED, STATUS_PRUNED
 

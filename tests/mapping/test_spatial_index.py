@@ -1,9 +1,9 @@
-"""The map's spatial index (spatial_index.py): never misses an object within the radius,
+"""The map's spatial index (mapping/spatial_index.py): never misses an object within the radius,
 builds again only the tiles that changed."""
 
 import numpy as np
 
-from agrislam.spatial_index import TILE, SpatialIndex
+from agrislam.mapping.spatial_index import TILE, SpatialIndex
 
 
 def test_spatial_index_finds_tree_and_fresh_objects_within_radius():

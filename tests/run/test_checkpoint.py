@@ -17,7 +17,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from agrislam.checkpoint import (
+from agrislam.config import AgrislamConfig, CheckpointConfig
+from agrislam.io.sinks.jsonl import write_log
+from agrislam.io.sinks.sqlite import load_map, read_checkpoint
+from agrislam.io.sources import open_source
+from agrislam.io.sources.sync import synchronise
+from agrislam.records import TruthObject, TruthPose
+from agrislam.run.checkpoint import (
     Checkpoints,
     InputFingerprint,
     ResumeError,
@@ -26,16 +32,11 @@ from agrislam.checkpoint import (
     dump_state,
     load_state,
 )
-from agrislam.config import AgrislamConfig, CheckpointConfig
-from agrislam.pipeline import RunError, run_survey
-from agrislam.records import TruthObject, TruthPose
-from agrislam.sinks.jsonl import write_log
-from agrislam.sinks.sqlite import load_map, read_checkpoint
-from agrislam.sources import open_source
-from agrislam.sources.sync import synchronise
+from agrislam.run.pipeline import RunError, run_survey
 from agrislam.world import WorldModel
+from paths import SRC as SRC_PATH
 
-SRC = str(Path(__file__).resolve().parents[1] / "src")
+SRC = str(SRC_PATH)
 EVERY = 20  # frames between checkpoints (the 40-plant survey has 178 frames)
 
 
@@ -110,10 +111,10 @@ def test_a_run_killed_with_sigkill_leaves_a_readable_checkpoint_and_resumes_to_t
     out = tmp_path / "run"
     runner = f"""
         import time
-        from agrislam.checkpoint import Checkpoints, InputFingerprint, config_identity
+        from agrislam.run.checkpoint import Checkpoints, InputFingerprint, config_identity
         from agrislam.config import AgrislamConfig, CheckpointConfig
-        from agrislam.pipeline import run_survey
-        from agrislam.sources import open_source
+        from agrislam.run.pipeline import run_survey
+        from agrislam.io.sources import open_source
         from agrislam.world import WorldModel
         every = {{"every_frames": {EVERY}, "frames_per_mb": 0.0}}
         cfg = AgrislamConfig.model_validate({{"checkpoint": every}})
@@ -238,7 +239,7 @@ def test_checkpoints_grow_apart_with_the_state_they_save(tmp_path):
 
 def test_force_removes_the_journal_of_a_checkpoint_cut_by_a_kill(tmp_path):
     """A hot journal left beside a new map.sqlite would be rolled back into it."""
-    from agrislam.sinks.run_folder import RunFolder, RunFolderError
+    from agrislam.io.sinks.run_folder import RunFolder, RunFolderError
 
     (tmp_path / "map.sqlite-journal").write_bytes(b"journal of a killed checkpoint")
     with pytest.raises(RunFolderError, match=r"map\.sqlite-journal"):
@@ -253,7 +254,7 @@ def test_a_checkpoint_that_cannot_be_written_is_an_issue_and_the_run_goes_on(
     def full_disk(*args, **kwargs):
         raise sqlite3.OperationalError("database or disk is full")
 
-    monkeypatch.setattr("agrislam.checkpoint.write_checkpoint", full_disk)
+    monkeypatch.setattr("agrislam.run.checkpoint.write_checkpoint", full_disk)
     result = _run(log, tmp_path, config())
     assert result.issues["checkpoint not written: OperationalError: database or disk is full"]
     _same_map(uninterrupted, result.snapshot)

@@ -1,4 +1,4 @@
-"""The cyclic garbage collector off the step path (collector.py): what survived is frozen
+"""The cyclic garbage collector off the step path (run/collector.py): what survived is frozen
 every so many frames, so a full collection never scans the whole map; the run's end hands
 it back, and a cycle that died frozen is collected then."""
 
@@ -14,7 +14,7 @@ import weakref
 
 import pytest
 
-from agrislam.collector import PacedCollector, release_free_heap
+from agrislam.run.collector import PacedCollector, release_free_heap
 
 
 class Node:
@@ -59,9 +59,9 @@ def test_young_cycles_are_collected_during_the_run():
 
 def test_a_run_hands_the_frozen_heap_back_also_when_it_stops(monkeypatch):
     from agrislam.config import AgrislamConfig
-    from agrislam.pipeline import _run
-    from agrislam.sources import open_source
-    from agrislam.sources.simulated import simulation_uri
+    from agrislam.io.sources import open_source
+    from agrislam.io.sources.simulated import simulation_uri
+    from agrislam.run.pipeline import _run
     from agrislam.world import WorldModel
 
     config = AgrislamConfig()

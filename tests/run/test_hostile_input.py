@@ -6,7 +6,7 @@ robots) are stopped here at the door; what GTSAM does with them is geometry's.
 
 What "otherwise the same map" is, measured: a skipped detection, truth or meta-free
 record changes nothing of the map's objects beyond that one detection; a skipped odometry
-record is bridged (sources/odometry_gaps.py), so every object is still mapped, within
+record is bridged (io/sources/odometry_gaps.py), so every object is still mapped, within
 a few centimetres of where the clean log puts it."""
 
 from __future__ import annotations
@@ -20,12 +20,12 @@ import numpy as np
 import pytest
 
 from agrislam.config import AgrislamConfig
-from agrislam.pipeline import RunError, run_survey
+from agrislam.io.sinks.jsonl import record_to_json
+from agrislam.io.sources.jsonl import LogError, read_log
+from agrislam.run.pipeline import RunError, run_survey
 from agrislam.sim.config import SimConfig
 from agrislam.sim.simulator import Simulator
-from agrislam.sinks.jsonl import record_to_json
 from agrislam.snapshot import MapSnapshot
-from agrislam.sources.jsonl import LogError, read_log
 from agrislam.world import WorldModel
 
 BRIDGED = 0.05  # m: how far an object may move when one odometry record was bridged

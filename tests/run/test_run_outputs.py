@@ -20,15 +20,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from agrislam.pipeline import RunError, run_survey
-from agrislam.sinks.atomic import atomic_path, is_temporary
-from agrislam.sinks.run_folder import LOCK_NAME, RunFolder, RunFolderError
-from agrislam.sinks.sqlite import load_map, save_map
-from agrislam.sources import open_source
+from agrislam.io.sinks.atomic import atomic_path, is_temporary
+from agrislam.io.sinks.run_folder import LOCK_NAME, RunFolder, RunFolderError
+from agrislam.io.sinks.sqlite import load_map, save_map
+from agrislam.io.sources import open_source
+from agrislam.run.pipeline import RunError, run_survey
 from agrislam.world import WorldModel
+from paths import SRC as SRC_PATH
 
 SMALL = "sim:?plants=30&seed=2"
-SRC = str(Path(__file__).resolve().parents[1] / "src")
+SRC = str(SRC_PATH)
 
 
 def _python(code: str) -> subprocess.Popen:
@@ -62,7 +63,7 @@ def test_map_sqlite_killed_while_it_is_written_stays_a_whole_database(tmp_path, 
     source = save_map(snapshot_factory(n_rows=40, per_row=500), tmp_path / "source.sqlite")
     path = tmp_path / "map.sqlite"
     writer = f"""
-        from agrislam.sinks.sqlite import load_map, save_map
+        from agrislam.io.sinks.sqlite import load_map, save_map
         snapshot = load_map({str(source)!r})
         while True:
             save_map(snapshot, {str(path)!r})
@@ -100,7 +101,7 @@ def test_out_must_be_a_folder_that_can_be_written(tmp_path):
 def test_a_second_run_into_a_folder_in_use_refuses_and_a_dead_owners_lock_is_taken(tmp_path):
     holder = f"""
         import time
-        from agrislam.sinks.run_folder import RunFolder
+        from agrislam.io.sinks.run_folder import RunFolder
         RunFolder({str(tmp_path)!r}).open()
         open({str(tmp_path / "held")!r}, "w").close()
         time.sleep(60)
@@ -160,7 +161,7 @@ def test_a_run_stopped_by_the_core_still_writes_the_map_so_far(tmp_path, monkeyp
 
 
 def test_one_output_that_fails_costs_that_file_only(tmp_path, monkeypatch):
-    import agrislam.pipeline as pipeline
+    import agrislam.run.pipeline as pipeline
 
     def broken(*args, **kwargs):
         raise MemoryError("no memory for the figure")
@@ -177,7 +178,7 @@ def test_one_output_that_fails_costs_that_file_only(tmp_path, monkeypatch):
 
 
 def test_an_interest_surface_that_cannot_be_made_costs_the_surface_only(tmp_path, monkeypatch):
-    import agrislam.pipeline as pipeline
+    import agrislam.run.pipeline as pipeline
 
     def broken(*args, **kwargs):
         raise MemoryError("no memory for the grid")
@@ -207,9 +208,9 @@ def test_an_interrupt_between_records_writes_the_map_so_far(tmp_path):
 def test_truth_trajectories_straight_from_the_arrays():
     """The report's true trajectories come from the truth's arrays (no object per pose):
     the same as evaluation.truth_trajectories of its poses, also for poses out of order."""
-    from agrislam.evaluation import truth_trajectories
-    from agrislam.pipeline import Truth
+    from agrislam.evaluation.metrics import truth_trajectories
     from agrislam.records import TruthPose
+    from agrislam.run.pipeline import Truth
 
     truth = Truth()
     rng = np.random.default_rng(1)
@@ -230,7 +231,7 @@ def test_a_released_world_lets_its_state_go_before_the_outputs(tmp_path, monkeyp
     reuse), and a later use of the world says that it was released."""
     import weakref
 
-    from agrislam import pipeline
+    from agrislam.run import pipeline
 
     kept = run_survey(open_source(SMALL), WorldModel(), tmp_path / "kept")
     world = WorldModel()

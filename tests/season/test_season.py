@@ -8,16 +8,16 @@ import json
 import numpy as np
 import pytest
 
+from agrislam.backend import make_backend
+from agrislam.backend.graph import PRIOR_POINT
 from agrislam.config import AgrislamConfig, RowsConfig, SeasonConfig, SlamConfig
 from agrislam.geometry import se2
-from agrislam.geometry.backend import make_backend
-from agrislam.geometry.graph import PRIOR_POINT
 from agrislam.geometry.view_area import in_robot_frames
-from agrislam.prior.relocalise import Relocaliser, cluster, detection_spread, rigid_fit
+from agrislam.io.sinks.history import History, plant_rows, read_history, write_history
+from agrislam.io.sinks.log_lines import record_to_json
+from agrislam.io.sources.jsonl import _survey_start
 from agrislam.records import Meta
-from agrislam.sinks.history import History, plant_rows, read_history, write_history
-from agrislam.sinks.log_lines import record_to_json
-from agrislam.sources.jsonl import _survey_start
+from agrislam.season.relocalise import Relocaliser, cluster, detection_spread, rigid_fit
 
 
 def _field(seed: int) -> np.ndarray:
@@ -151,7 +151,7 @@ def test_history_tables_round_trip(tmp_path):
 def test_history_rows_are_made_as_read_in_parts(monkeypatch):
     """A whole field's rows are not held as tuples (issue 14): they are made from the
     survey's arrays each time they are read, a part at a time, the same every time."""
-    from agrislam.sinks import history
+    from agrislam.io.sinks import history
 
     n = 7
     rows = plant_rows(
@@ -203,7 +203,7 @@ def _prior_schema():
 
 
 def _prior(t_abs: float = 1.7e9):
-    from agrislam.prior.map import PriorMap
+    from agrislam.season.prior_map import PriorMap
 
     ids = np.array([0, 2, 5])
     return PriorMap(
@@ -242,8 +242,8 @@ def test_world_takes_the_prior_with_ids_and_beliefs_carried_by_app_b():
 
 
 def test_a_held_plant_enters_the_graph_with_its_saved_prior_when_seen():
-    from agrislam.geometry.backend import RelativePosition
-    from agrislam.prior.backend import PriorBackend
+    from agrislam.backend import RelativePosition
+    from agrislam.season.prior_backend import PriorBackend
 
     prior = _prior()
     inner = make_backend(SlamConfig(), RowsConfig(enabled=False))
@@ -262,7 +262,7 @@ def test_a_held_plant_enters_the_graph_with_its_saved_prior_when_seen():
 
 
 def test_changes_by_the_binomial_posterior():
-    from agrislam.prior.changes import ViewArea, find_changes
+    from agrislam.season.changes import ViewArea, find_changes
 
     poses = np.column_stack([np.linspace(0, 10, 51), np.zeros(51), np.zeros(51)])
     area = ViewArea((0.3, 2.0), (-0.7, 0.7))
@@ -297,7 +297,7 @@ def test_the_detection_rate_counts_sightings_and_views_in_the_same_area():
     clip, and a weed seen in 3 of its in-area frames was marked gone; counted frame by
     frame in the same area, p_d is the detector's, the weed stays and a removed plant with
     clear views is still gone."""
-    from agrislam.prior.changes import ViewArea, find_changes
+    from agrislam.season.changes import ViewArea, find_changes
 
     poses = np.column_stack([np.linspace(0, 30, 151), np.zeros(151), np.zeros(151)])
     area = ViewArea((0.3, 2.0), (-0.7, 0.7))
@@ -321,7 +321,7 @@ def test_the_detection_rate_counts_sightings_and_views_in_the_same_area():
 def test_the_seen_area_is_shrunk_at_its_far_edge_and_sides_only():
     """The margin keeps views off the edges where the detection rate falls; the near edge
     (the highest rate, the views of headland turns) keeps its learned bound."""
-    from agrislam.prior.changes import ViewArea
+    from agrislam.season.changes import ViewArea
 
     r, b = np.meshgrid(np.linspace(1.0, 2.5, 31), np.linspace(-0.6, 0.6, 25))
     robot_xy = np.column_stack([(r * np.cos(b)).ravel(), (r * np.sin(b)).ravel()])
@@ -333,7 +333,7 @@ def test_the_seen_area_is_shrunk_at_its_far_edge_and_sides_only():
 
 
 def test_the_back_end_tells_what_was_seen_from_where():
-    from agrislam.geometry.backend import RelativePosition
+    from agrislam.backend import RelativePosition
 
     backend = make_backend(SlamConfig(), RowsConfig(enabled=False))
     backend.add_robot("a", np.zeros(3), np.full(3, 0.01), 0.0)
@@ -371,7 +371,7 @@ def test_history_command_prints_surveys_and_a_plant(tmp_path):
     from typer.testing import CliRunner
 
     from agrislam.cli import app
-    from agrislam.sinks.sqlite import save_map
+    from agrislam.io.sinks.sqlite import save_map
     from agrislam.snapshot import MapSnapshot, ObjectMap
 
     schema = _prior_schema()
@@ -430,9 +430,9 @@ def test_an_emerged_weed_becomes_one_new_plant(tmp_path):
     of the map, each one object, and reported new; nothing else is new."""
     from collections import Counter
 
-    from agrislam.pipeline import run_survey
     from agrislam.records import Detections
-    from agrislam.season_outputs import load_season
+    from agrislam.run.pipeline import run_survey
+    from agrislam.run.season_outputs import load_season
     from agrislam.sim.config import SimConfig
     from agrislam.sim.season import SeasonSimulator, season_config
     from agrislam.world import WorldModel
@@ -491,9 +491,9 @@ def _drive(name: str, start: np.ndarray, field: np.ndarray, t0: float, rng) -> l
 def test_every_robot_of_a_survey_is_relocalised_by_its_own_first_frames():
     """Two robots on lanes 3 m apart, driving opposite ways, the second starting later:
     the records are released with both start poses from their own fixes."""
-    from agrislam.prior.map import PriorMap
     from agrislam.records import Odometry
-    from agrislam.season import SeasonRun
+    from agrislam.run.season import SeasonRun
+    from agrislam.season.prior_map import PriorMap
     from agrislam.world import WorldModel
 
     field, rng = _field(1), np.random.default_rng(2)

@@ -9,6 +9,9 @@ import pytest
 from scipy.spatial.distance import cdist
 
 from agrislam.geometry.se2 import wrap_angle
+from agrislam.io.sinks.jsonl import write_log
+from agrislam.io.sources.jsonl import read_log
+from agrislam.io.sources.sync import synchronise
 from agrislam.records import Detections, Meta, Odometry, TruthObject, TruthPose
 from agrislam.sim.arena import ArenaSimulator
 from agrislam.sim.config import ArenaConfig, ArenaOdometry, LandmarkAttribute, RangeBearingCamera
@@ -16,9 +19,6 @@ from agrislam.sim.landmarks import clustered_landmarks
 from agrislam.sim.odometry import drifting_odometry, increments, integrate, random_walk_variance
 from agrislam.sim.random_drive import segment_distance
 from agrislam.sim.range_bearing import observe, read_ids
-from agrislam.sinks.jsonl import write_log
-from agrislam.sources.jsonl import read_log
-from agrislam.sources.sync import synchronise
 
 SMALL = {"driving": {"duration_s": 60.0, "n_robots": 2}}
 

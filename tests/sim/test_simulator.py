@@ -3,13 +3,13 @@ from collections import Counter
 import numpy as np
 import pytest
 
+from agrislam.io.sinks.jsonl import write_log
+from agrislam.io.sources.jsonl import read_log
+from agrislam.io.sources.sync import synchronise
 from agrislam.records import Detections, Meta, Odometry, TruthObject, TruthPose
 from agrislam.sim.config import SimConfig
 from agrislam.sim.odometry import integrate
 from agrislam.sim.simulator import Simulator
-from agrislam.sinks.jsonl import write_log
-from agrislam.sources.jsonl import read_log
-from agrislam.sources.sync import synchronise
 
 SMALL = {"field": {"n_plants": 60, "n_rows": 4}}
 

@@ -7,7 +7,7 @@ The association matrix entry of detection m and object n is
 with e = z_n - z_m, K_n the object's marginal position covariance; entries above 1
 are forbidden; the assignment minimises the sum (scipy's linear_sum_assignment).
 Only objects within the largest distance the formula can still accept are looked
-at, found through the spatial index (spatial_index.py), so a frame's cost does not grow
+at, found through the spatial index (mapping/spatial_index.py), so a frame's cost does not grow
 with it.
 """
 
@@ -20,7 +20,7 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from agrislam.config import AssociationConfig, FieldSchema
-from agrislam.geometry.calibration import mahalanobis
+from agrislam.estimation.noise_calibration import mahalanobis
 from agrislam.records import DiscreteMeasurement, Measurement
 from agrislam.semantics.beliefs import BeliefTable
 

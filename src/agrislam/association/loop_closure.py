@@ -4,7 +4,7 @@ the paper).
 When a robot returns after a long drive, its drift can be far past the association's
 gate (Victoria Park: tens of metres and a few tens of degrees after the first loop), and
 every object it sees then starts anew: the map holds the place twice and the loop never
-closes. rejoin.py takes back a frame that is off by a metre; this takes back a place.
+closes. association/rejoin.py takes back a frame that is off by a metre; this takes back a place.
 
 The robot's constellation is the objects started lately that it saw last, each seen in a
 few frames; the candidates are old objects not seen since the constellation began (one
@@ -25,11 +25,11 @@ from typing import NamedTuple
 
 import numpy as np
 
-from agrislam.association import gated_matches
-from agrislam.births import Births
-from agrislam.geometry.backend import GraphBackend
+from agrislam.association.gnn import gated_matches
+from agrislam.backend import GraphBackend
 from agrislam.geometry.se2 import pair_motions, rotation, turned
-from agrislam.objects import ObjectTable
+from agrislam.mapping.births import Births
+from agrislam.mapping.objects import ObjectTable
 from agrislam.snapshot import STATUS_ACTIVE
 
 RECENT_S = 300.0  # objects started this recently may form a robot's constellation
@@ -39,7 +39,10 @@ MAX_CONSTELLATION = 20  # the newest objects of a constellation, no more
 MAX_CANDIDATES = 60  # the old objects nearest the constellation, no more
 FITS = 8  # the best bins fitted and counted
 SPACING_SIGMAS = 3.0  # two pairs are as far apart within this many sigmas
-CLOSED = "loops closed: a returning robot's new objects merged into old ones (loop_closure.py)"
+CLOSED = (
+    "loops closed: a returning robot's new objects merged into old ones "
+    "(association/loop_closure.py)"
+)
 
 
 class _Fit(NamedTuple):

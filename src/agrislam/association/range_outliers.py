@@ -6,12 +6,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from agrislam.association import PlacedDetections
+from agrislam.association.gnn import PlacedDetections
+from agrislam.backend import GraphBackend
 from agrislam.geometry import se2
-from agrislam.geometry.backend import GraphBackend
-from agrislam.objects import ObjectTable
+from agrislam.mapping.objects import ObjectTable
+from agrislam.mapping.spatial_index import SpatialIndex
 from agrislam.snapshot import STATUS_ACTIVE
-from agrislam.spatial_index import SpatialIndex
 
 # an object detected at most this often may be made of range outliers (RangeOutliers)
 OUTLIER_MAX_MEAS = 10
@@ -24,7 +24,9 @@ OUTLIER_MAX_MEAS = 10
 JUDGED_AFTER_S, LANDMARK_AFTER_S = 30.0, 120.0
 TRUST_JUDGED, TRUST_SHARE = 20, 0.95
 # the run's issue that counts the detections so taken
-RANGE_ERRORS = "detections taken for a mapped landmark's range errors (range_outliers.py)"
+RANGE_ERRORS = (
+    "detections taken for a mapped landmark's range errors (association/range_outliers.py)"
+)
 
 
 class RangeOutliers:

@@ -23,19 +23,19 @@ from typing import NamedTuple
 
 import numpy as np
 
-from agrislam.association import PlacedDetections, gated_matches
-from agrislam.births import Births
-from agrislam.geometry.backend import GraphBackend
-from agrislam.geometry.calibration import mahalanobis
+from agrislam.association.gnn import PlacedDetections, gated_matches
+from agrislam.backend import GraphBackend
+from agrislam.estimation.noise_calibration import mahalanobis
 from agrislam.geometry.se2 import pair_motions, turned
-from agrislam.spatial_index import SpatialIndex
+from agrislam.mapping.births import Births
+from agrislam.mapping.spatial_index import SpatialIndex
 
 LOST_WINDOW_S = 30.0  # objects started this recently are not settled
 MAX_SHIFT_M = 1.0  # the largest correction of the robot's position
 MAX_TURN_RAD = 0.3  # and of its heading
 DISTINCT = (0.2, 0.05)  # (m, rad): corrections nearer than this are one
 SPACING_SIGMAS = 3.0  # two detections' distance apart matches two objects' within this
-REJOINED = "frames on which a lost robot rejoined the map (rejoin.py)"
+REJOINED = "frames on which a lost robot rejoined the map (association/rejoin.py)"
 
 
 class Rejoiner:

@@ -9,9 +9,7 @@ from collections import Counter
 import gtsam
 import numpy as np
 
-from agrislam.config import RowsConfig, SlamConfig
-from agrislam.geometry.backend import Measurement, RangeBearing, RelativePosition
-from agrislam.geometry.graph import (
+from agrislam.backend.graph import (
     DETECTION,
     GNSS,
     ODOMETRY,
@@ -26,7 +24,14 @@ from agrislam.geometry.graph import (
     key_indices,
     row_key,
 )
-from agrislam.geometry.noise import check_covariance, relative_to_range_bearing
+from agrislam.config import RowsConfig, SlamConfig
+from agrislam.geometry.noise import (
+    Measurement,
+    RangeBearing,
+    RelativePosition,
+    check_covariance,
+    relative_to_range_bearing,
+)
 from agrislam.geometry.se2 import compose
 
 # start prior of a robot that anchors the map frame (given start pose without sigma, or the
@@ -152,7 +157,7 @@ class BackendBase:
         return self._estimate(self.graph.robot(robot).keys[-1])
 
     def add_gnss(self, robot: str, value: np.ndarray, cov: np.ndarray) -> None:
-        """A GNSS fix on the robot's latest pose (geometry/gnss.py: value's layout)."""
+        """A GNSS fix on the robot's latest pose (estimation/gnss.py: value's layout)."""
         where = f"GNSS fix of robot {robot!r}"
         value = np.asarray(value, dtype=float)
         if value.shape != (6,) or not np.all(np.isfinite(value)):

@@ -7,9 +7,9 @@ from __future__ import annotations
 import gtsam
 import numpy as np
 
+from agrislam.backend.base import BackendBase, pose_array
+from agrislam.backend.graph import POSE, key_kind, make_factor
 from agrislam.config import RowsConfig, SlamConfig
-from agrislam.geometry.base import BackendBase, pose_array
-from agrislam.geometry.graph import POSE, key_kind, make_factor
 
 # convergence of one step's solve; the graph starts at the previous optimum, so a step
 # usually takes a few iterations (g2o's defaults are in the same range)

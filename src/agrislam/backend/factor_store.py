@@ -27,7 +27,7 @@ from typing import Any
 
 import numpy as np
 
-from agrislam.geometry.key_table import KeyTable
+from agrislam.backend.key_table import KeyTable
 from agrislam.growing import Doubling, grown
 
 NONE = -1

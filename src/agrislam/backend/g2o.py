@@ -34,8 +34,8 @@ from pathlib import Path
 
 import numpy as np
 
-from agrislam.geometry.base import BackendBase
-from agrislam.geometry.graph import (
+from agrislam.backend.base import BackendBase
+from agrislam.backend.graph import (
     DETECTION,
     GNSS,
     ODOMETRY,
@@ -58,7 +58,7 @@ from agrislam.geometry.noise import (
     row_direction,
     row_normal,
 )
-from agrislam.geometry.rows import wrap_row_angle
+from agrislam.geometry.se2 import wrap_row_angle
 
 # FIX as a prior: this tight (m, m, rad), far below any measurement's noise
 FIX_SIGMA = 1e-6
@@ -95,7 +95,7 @@ def write_g2o(backend: BackendBase, path: str | Path, fix_first: bool = False) -
     graph = backend.graph
     vertex: dict[int, int] = {}
     lines: list[str] = []
-    notes = ["# agrislam graph (sec. 2.6): robot poses, objects, rows; agrislam.geometry.g2o"]
+    notes = ["# agrislam graph (sec. 2.6): robot poses, objects, rows; agrislam.backend.g2o"]
     for name, chain in graph.robots.items():
         notes.append(f"# agrislam robot {name} {len(vertex)} {len(chain.keys)}")
         notes.append(f"# agrislam times {name} " + " ".join(_num(t) for t in chain.times))

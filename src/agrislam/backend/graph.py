@@ -12,12 +12,12 @@ from typing import overload
 import gtsam
 import numpy as np
 
+from agrislam.backend.factor_store import Factor, FactorStore
+from agrislam.backend.gnss_factor import gnss_factor
+from agrislam.backend.key_table import NODE_BITS, KeyTable
+from agrislam.backend.object_nodes import ObjectNodes
 from agrislam.config import SlamConfig
-from agrislam.geometry.factor_store import Factor, FactorStore
-from agrislam.geometry.gnss import gnss_factor
-from agrislam.geometry.key_table import NODE_BITS, KeyTable
 from agrislam.geometry.noise import gaussian, one_direction, robust, row_direction, row_normal
-from agrislam.geometry.object_nodes import ObjectNodes
 from agrislam.growing import GrowingRows
 
 # key layout: one symbol letter per node kind; robot r's pose i is x(r * POSES_PER_ROBOT + i)

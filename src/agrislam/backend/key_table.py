@@ -2,7 +2,7 @@
 layout"): a dict entry costs about 100 bytes a node, and a field of 100,000 plants has
 several hundred thousand nodes (issue 14).
 
-A key (GTSAM's symbol, geometry/graph.py's layout) numbers its node densely in its low
+A key (GTSAM's symbol, backend/graph.py's layout) numbers its node densely in its low
 NODE_BITS bits within its kind and robot, the bits above: one array per kind and robot,
 indexed by that number, MISSING where the table holds nothing. A plain id (below 2^40)
 is a key of its own: the graph's table of each object's row is keyed by object id."""

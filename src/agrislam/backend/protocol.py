@@ -1,5 +1,4 @@
-"""The graph back end interface (sec. 2.6): measurement types, the protocol the world model
-calls, and `make_backend`, which builds the configured back end."""
+"""The graph back end's interface (sec. 2.6): what the world model and its stages call."""
 
 from __future__ import annotations
 
@@ -7,22 +6,7 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
-from agrislam.config import RowsConfig, SlamConfig
-from agrislam.geometry.noise import (
-    Measurement,
-    RangeBearing,
-    RelativePosition,
-    detection_covariance,
-)
-
-__all__ = [
-    "GraphBackend",
-    "Measurement",
-    "RangeBearing",
-    "RelativePosition",
-    "detection_covariance",
-    "make_backend",
-]
+from agrislam.geometry.noise import Measurement
 
 
 @runtime_checkable
@@ -84,15 +68,3 @@ class GraphBackend(Protocol):
     def rows_of(self, object_ids: np.ndarray) -> np.ndarray: ...
 
     def refine(self) -> None: ...
-
-
-def make_backend(slam: SlamConfig, rows: RowsConfig) -> GraphBackend:
-    """The back end `slam.backend` names: "incremental" (windowed iSAM2, the default) or
-    "batch" (the paper's whole-graph LM/Dogleg every step)."""
-    if slam.backend == "batch":
-        from agrislam.geometry.batch import BatchBackend
-
-        return BatchBackend(slam, rows)
-    from agrislam.geometry.incremental import IncrementalBackend
-
-    return IncrementalBackend(slam, rows)

@@ -17,10 +17,10 @@ from typing import Annotated, Any, Literal
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, PositiveFloat, model_validator
 
-from agrislam.gnss_config import GnssConfig
-from agrislam.limits import InputLimits, first_error
-from agrislam.limits import StrictModel as _Strict
-from agrislam.season_config import SeasonConfig
+from agrislam.config.gnss import GnssConfig
+from agrislam.config.limits import InputLimits, first_error
+from agrislam.config.limits import StrictModel as _Strict
+from agrislam.config.season import SeasonConfig
 
 SECONDS_PER_DAY = 86_400.0
 # association keys renamed since 0.1: old -> new (read with a FutureWarning)
@@ -216,7 +216,7 @@ class SemanticsConfig(_Strict):
 
 
 class CalibrationConfig(_Strict):
-    """Noise that calibrates itself (geometry/calibration.py): the scales of the detection,
+    """Noise that calibrates itself (estimation/noise_calibration.py): the scales of the detection,
     odometry translation and odometry heading noise, estimated from the run's own pairs of
     sightings of an object and used from then on; the configured noise is the start."""
 
@@ -278,7 +278,7 @@ class SensorDefaults(_Strict):
     )
     limits: InputLimits = Field(
         default_factory=InputLimits,
-        description="bounds of what a source accepts from a record (sources/validate.py)",
+        description="bounds of what a source accepts from a record (io/sources/validate.py)",
     )
     calibration: CalibrationConfig = Field(
         default_factory=CalibrationConfig,
@@ -324,7 +324,7 @@ class AssociationConfig(_Strict):
         False,
         description="compare e against its whole covariance instead of the paper's K_n "
         "alone: the tighter of K_n + R_m + the robot pose marginal (DESIGN step 3) and "
-        "R_m + the robot's drift since it last saw the object (association.py); "
+        "R_m + the robot's drift since it last saw the object (association/gnn.py); "
         "formerly `detection_covariance`",
     )
     gate_chi2: float = Field(
@@ -339,7 +339,8 @@ class AssociationConfig(_Strict):
         "defaults are for: unless set here, it is gated on the whole innovation (at "
         "landmark_gate_chi2, over landmark_sigma_max), d_inter is three of its first "
         "detections' median sharpest sigma, rows are off, the crop camera's confirmation of "
-        "young objects (maintenance.existence) is off, and a lost robot rejoins (rejoin.py)",
+        "young objects (maintenance.existence) is off, and a lost robot rejoins "
+        "(association/rejoin.py)",
     )
     landmark_gate_chi2: float = Field(
         9.21, gt=0.0, description="the gate without a field prior: 99 % of a 2D position"
@@ -404,7 +405,8 @@ class SlamConfig(_Strict):
         ge=1,
         description="a marginal covariance read for association serves this many steps of "
         "each robot if its object was seen since, ten times as many if not (each read is a "
-        "Bayes-tree traversal, geometry/marginal_cache.py); 1 = read each step it is seen",
+        "Bayes-tree traversal, backend/incremental/marginal_cache.py); 1 = read each step it "
+        "is seen",
     )
     refine_turn_deg: float = Field(
         3.0,

@@ -6,11 +6,11 @@ from typing import Literal
 
 from pydantic import Field
 
-from agrislam.limits import StrictModel as _Strict
+from agrislam.config.limits import StrictModel as _Strict
 
 
 class GnssConfig(_Strict):
-    """GNSS fixes as factors on the robot pose (geometry/gnss.py)."""
+    """GNSS fixes as factors on the robot pose (estimation/gnss.py)."""
 
     enabled: bool = True
     # sigma floor per fix type (m, horizontal): a receiver's covariance is trusted no lower

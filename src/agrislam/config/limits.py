@@ -1,6 +1,6 @@
 """The base of every configuration model and its errors as 'where: what', and the bounds
 of what a source accepts from a record (`InputLimits`, the config's `sensor.limits`;
-sources/validate.py applies them)."""
+io/sources/validate.py applies them)."""
 
 from __future__ import annotations
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pydantic import Field
 
-from agrislam.limits import StrictModel as _Strict
+from agrislam.config.limits import StrictModel as _Strict
 
 
 class SeasonConfig(_Strict):

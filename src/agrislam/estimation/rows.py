@@ -12,9 +12,10 @@ import math
 
 import numpy as np
 
+from agrislam.backend import GraphBackend
 from agrislam.config import RowsConfig
-from agrislam.geometry.backend import GraphBackend
 from agrislam.geometry.noise import row_normal
+from agrislam.geometry.se2 import wrap_row_angle
 from agrislam.records import FieldPrior
 from agrislam.snapshot import RowLines
 
@@ -26,11 +27,6 @@ GAUSS_NEWTON_ITERATIONS = 5
 FIT_POINTS = 3000
 # a refit that turns the rows by more than this rebuilds the row constraints
 REBUILD_ANGLE = math.radians(0.2)
-
-
-def wrap_row_angle(angle: float) -> float:
-    """Rows at a and a + pi are the same lines: angle into [-pi/2, pi/2)."""
-    return (angle + math.pi / 2) % math.pi - math.pi / 2
 
 
 def periodicity(points: np.ndarray, angles: np.ndarray, spacing: float) -> np.ndarray:

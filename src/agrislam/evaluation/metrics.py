@@ -19,8 +19,8 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
+from agrislam.evaluation.ground_truth import TruthObjects
 from agrislam.geometry.se2 import rotation, wrap_angle
-from agrislam.ground_truth import TruthObjects
 from agrislam.records import TruthObject, TruthPose
 from agrislam.snapshot import MapSnapshot, Trajectory
 

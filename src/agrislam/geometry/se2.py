@@ -3,6 +3,8 @@ with first-order covariance propagation. Vectorised where it runs per detection.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 
@@ -114,3 +116,8 @@ def yaw_from_quaternion(q: tuple[float, ...] | np.ndarray) -> float:
     """Heading (rotation about z) of a quaternion (x, y, z, w)."""
     x, y, z, w = (float(v) for v in q)
     return float(np.arctan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z)))
+
+
+def wrap_row_angle(angle: float) -> float:
+    """Rows at a and a + pi are the same lines: angle into [-pi/2, pi/2)."""
+    return (angle + math.pi / 2) % math.pi - math.pi / 2

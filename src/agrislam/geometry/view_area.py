@@ -8,7 +8,7 @@ detections: clutter, a neighbour), with the binomial likelihoods
     P(n | there) = p_d^n (1 - p_d)^(k - n),    P(n | not there) = e^n (1 - e)^(k - n),
 
 p_d the detection rate of a plant in view and e the rate of stray detections on a point.
-Used for plants gone between surveys (prior/changes.py) and for the clutter of one survey
+Used for plants gone between surveys (season/changes.py) and for the clutter of one survey
 (maintenance.py).
 """
 

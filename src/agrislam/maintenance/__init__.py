@@ -33,9 +33,9 @@ import numpy as np
 
 from agrislam.config import MaintenanceConfig
 from agrislam.geometry.view_area import ViewArea, log_odds_absent
-from agrislam.objects import ObjectTable
+from agrislam.mapping.objects import ObjectTable
+from agrislam.mapping.spatial_index import SpatialIndex
 from agrislam.snapshot import STATUS_MERGED
-from agrislam.spatial_index import SpatialIndex
 
 SAMPLE = 20_000  # robot-frame detections the seen area is learned from
 EM_ROUNDS = 10

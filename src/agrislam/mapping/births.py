@@ -1,5 +1,6 @@
 """When objects were started: ids are row numbers, never reused, so the number of objects
-at each time says which ids are older than a time (rejoin.py, loop_closure.py)."""
+at each time says which ids are older than a time
+(association/rejoin.py, association/loop_closure.py)."""
 
 from __future__ import annotations
 

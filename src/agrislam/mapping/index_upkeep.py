@@ -6,10 +6,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from agrislam.backend import GraphBackend
 from agrislam.config import AssociationConfig
-from agrislam.geometry.backend import GraphBackend
-from agrislam.objects import ObjectTable
-from agrislam.spatial_index import SpatialIndex
+from agrislam.mapping.objects import ObjectTable
+from agrislam.mapping.spatial_index import SpatialIndex
 
 FRESH_MAX = 500  # objects moved since the last rebuild that force the next
 

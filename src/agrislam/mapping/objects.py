@@ -6,7 +6,7 @@ and its beliefs (its `BeliefTable`, the table's semantic columns, with the measu
 count and last update the interest heuristic reads): whether it is active, merged into
 another or pruned; in how many frames it was seen and which robot saw it last, where (in
 that robot's dead-reckoning frame) and with what drift of its chain then (geometry/drift.py,
-geometry/calibration.py); whether the pruner still watches it; whether it is still
+estimation/noise_calibration.py); whether the pruner still watches it; whether it is still
 tentative and in how many frames it was in view (maintenance.Existence).
 `retire` is the one way out of the map: the parts that keep state of their own per
 object (the spatial index) subscribe to it.

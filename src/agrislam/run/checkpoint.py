@@ -10,7 +10,8 @@ percent of mapping it) and maps on from the saved state.
 The state is saved with Python's pickle protocol, which is also how each part says what it
 holds: plain attributes (numpy arrays, dicts, dataclasses, pydantic models) are saved as they
 are; a part that holds what pickle cannot take implements `__getstate__`/`__setstate__`
-(the GTSAM back ends: `geometry/incremental.py`, `geometry/batch.py`, `geometry/retired.py`;
+(the GTSAM back ends: `backend/incremental/backend.py`, `backend/batch.py`,
+`backend/incremental/retired.py`;
 the survey graph saves its factors as columns, for speed). New state is saved with no
 change here; `tests/test_checkpoint.py` pickles a world after a survey and fails on any part
 that cannot be.
@@ -40,17 +41,17 @@ from pathlib import Path
 from typing import Any
 
 from agrislam.config import AgrislamConfig, CheckpointConfig
-from agrislam.sinks.sqlite import read_checkpoint, write_checkpoint
+from agrislam.io.sinks.sqlite import read_checkpoint, write_checkpoint
 from agrislam.world import WorldModel
 
 # raised whenever the state changes shape, so that an older checkpoint is refused, not misread
-# (2: folded poses held between both keyframes of their window, geometry/isam_state.py;
-# 3: retired nodes in geometry/retired.py, frozen keyframes; 4: per-node integers in
-# geometry/key_table.py; 5: the truth as arrays, ground_truth.py; 6: tables grown by
-# growing.Doubling; 7: geometry/marginal_cache.py, the factor store's rows in use alone;
+# (2: folded poses held between both keyframes of their window, backend/incremental/isam_state.py;
+# 3: retired nodes in backend/incremental/retired.py, frozen keyframes; 4: per-node integers in
+# backend/key_table.py; 5: the truth as arrays, evaluation/ground_truth.py; 6: tables grown by
+# growing.Doubling; 7: backend/incremental/marginal_cache.py, the factor store's rows in use alone;
 # 8: the world's maintenance.Merger; 9: the Merger's sets of objects detected together;
 # 10: the world's rejoin.Rejoiner; 13: the objects RangeOutliers watches and has judged)
-FORMAT = b"agrislam-checkpoint 13"
+FORMAT = b"agrislam-checkpoint 14"
 # the modules a checkpoint's objects may come from
 TRUSTED_MODULES = {"agrislam", "numpy", "collections", "copyreg", "builtins", "pydantic"}
 TRUSTED_MODULES |= {"pydantic_core", "scipy"}

@@ -16,31 +16,31 @@ from typing import Any
 
 import numpy as np
 
-from agrislam.checkpoint import FORMAT, Checkpoints, RunState, adopt
-from agrislam.collector import PacedCollector, release_free_heap
 from agrislam.config import OutputsConfig, SemanticsConfig
-from agrislam.evaluation import association_counts, evaluate, write_metrics
-from agrislam.ground_truth import TruthObjects
+from agrislam.evaluation.ground_truth import TruthObjects
+from agrislam.evaluation.metrics import association_counts, evaluate, write_metrics
 from agrislam.growing import GrowingRows
-from agrislam.perception.label_map import LabelMap
+from agrislam.io.perception.label_map import LabelMap
+from agrislam.io.sinks.atomic import atomic_path
+from agrislam.io.sinks.csv import write_objects_csv, write_table, write_trajectory_csv
+from agrislam.io.sinks.foxglove import write_foxglove_mcap
+from agrislam.io.sinks.geojson import write_geojson
+from agrislam.io.sinks.geopackage import write_geopackage
+from agrislam.io.sinks.isoxml import write_isoxml
+from agrislam.io.sinks.report import write_report
+from agrislam.io.sinks.ros_map import write_map_mcap
+from agrislam.io.sinks.run_folder import RunFolder, RunFolderError
+from agrislam.io.sinks.shapefile import write_shapefile
+from agrislam.io.sinks.sqlite import save_map, write_checkpoint
+from agrislam.io.sources.base import Source, SourceError, SourceReport
+from agrislam.io.sources.sync import synchronise
 from agrislam.records import Detections, Meta, Record, TruthObject, TruthPose
-from agrislam.season import SeasonRun
-from agrislam.season_outputs import season_outputs
+from agrislam.run.checkpoint import FORMAT, Checkpoints, RunState, adopt
+from agrislam.run.collector import PacedCollector, release_free_heap
+from agrislam.run.season import SeasonRun
+from agrislam.run.season_outputs import season_outputs
 from agrislam.semantics.heuristic import interest_surface
-from agrislam.sinks.atomic import atomic_path
-from agrislam.sinks.csv import write_objects_csv, write_table, write_trajectory_csv
-from agrislam.sinks.foxglove import write_foxglove_mcap
-from agrislam.sinks.geojson import write_geojson
-from agrislam.sinks.geopackage import write_geopackage
-from agrislam.sinks.isoxml import write_isoxml
-from agrislam.sinks.report import write_report
-from agrislam.sinks.ros_map import write_map_mcap
-from agrislam.sinks.run_folder import RunFolder, RunFolderError
-from agrislam.sinks.shapefile import write_shapefile
-from agrislam.sinks.sqlite import save_map, write_checkpoint
 from agrislam.snapshot import MapSnapshot, Trajectory
-from agrislam.sources.base import Source, SourceError, SourceReport
-from agrislam.sources.sync import synchronise
 from agrislam.world import WorldModel
 
 
@@ -164,7 +164,7 @@ def run_survey(
     strict mode, an error of the core, Ctrl-C), the map of the records before it is
     written and `RunError` raised with the result.
 
-    `checkpoints`: save the run's state every so many frames (`agrislam.checkpoint`);
+    `checkpoints`: save the run's state every so many frames (`agrislam.run.checkpoint`);
     `resume`: first carry on from the checkpoint there (`ResumeError` if it is of another
     input or config), skipping the records it had mapped. `release_world`: once the map is
     taken and scored, the world model lets its solver and per-object state go

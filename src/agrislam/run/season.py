@@ -21,10 +21,10 @@ import numpy as np
 
 from agrislam.config import AgrislamConfig, FieldSchema
 from agrislam.geometry import se2
-from agrislam.prior.changes import Changes, ViewArea, find_changes
-from agrislam.prior.map import PriorMap
-from agrislam.prior.relocalise import Fix, Relocaliser, cluster, detection_spread
 from agrislam.records import Detections, DiscreteMeasurement, Meta, Odometry, Record, RobotStart
+from agrislam.season.changes import Changes, ViewArea, find_changes
+from agrislam.season.prior_map import PriorMap
+from agrislam.season.relocalise import Fix, Relocaliser, cluster, detection_spread
 from agrislam.snapshot import STATUS_ACTIVE, STATUS_GONE
 from agrislam.world import WorldModel
 

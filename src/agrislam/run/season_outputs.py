@@ -12,12 +12,12 @@ from typing import Any
 import numpy as np
 
 from agrislam.config import AgrislamConfig
-from agrislam.prior.map import PriorMap
-from agrislam.season import SeasonRun
-from agrislam.sinks.csv import write_table
-from agrislam.sinks.history import ChainedRows, History, plant_rows, read_history, write_history
-from agrislam.sinks.season_figures import growth_attribute, write_season_figure
-from agrislam.sinks.sqlite import load_map
+from agrislam.io.sinks.csv import write_table
+from agrislam.io.sinks.history import ChainedRows, History, plant_rows, read_history, write_history
+from agrislam.io.sinks.season_figures import growth_attribute, write_season_figure
+from agrislam.io.sinks.sqlite import load_map
+from agrislam.run.season import SeasonRun
+from agrislam.season.prior_map import PriorMap
 from agrislam.snapshot import MapSnapshot
 from agrislam.world import WorldModel
 

@@ -10,8 +10,8 @@ from typing import Any
 
 import numpy as np
 
-from agrislam.geometry.backend import Measurement
-from agrislam.geometry.base import BackendBase
+from agrislam.backend import Measurement
+from agrislam.backend.base import BackendBase
 
 
 class PriorBackend:

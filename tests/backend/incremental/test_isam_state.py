@@ -1,13 +1,13 @@
-"""The incremental back end's state parts (geometry/isam_state.py) on their own: the
+"""The incremental back end's state parts (backend/incremental/isam_state.py) on their own: the
 pending update against a real iSAM2, the slot table's bookkeeping."""
 
 import gtsam
 import numpy as np
 import pytest
 
-from agrislam.geometry.batch import values_at
-from agrislam.geometry.isam_state import Entry, PendingUpdate, SlotTable, per_distinct
-from agrislam.geometry.retired import Anchored, anchor_factor
+from agrislam.backend.batch import values_at
+from agrislam.backend.incremental.isam_state import Entry, PendingUpdate, SlotTable, per_distinct
+from agrislam.backend.incremental.retired import Anchored, anchor_factor
 
 X0, X1 = gtsam.symbol("x", 0), gtsam.symbol("x", 1)
 L0, L1 = gtsam.symbol("l", 0), gtsam.symbol("l", 1)

@@ -1,4 +1,4 @@
-"""Marginal covariances kept for association (geometry/marginal_cache.py): read again
+"""Marginal covariances kept for association (backend/incremental/marginal_cache.py): read again
 after their reuse (ten times as long for a node without a new factor since), or after a
 new factor, unless the object is settled."""
 
@@ -9,7 +9,7 @@ import pickle
 import gtsam
 import numpy as np
 
-from agrislam.geometry.marginal_cache import SETTLED, STALE, MarginalCache
+from agrislam.backend.incremental.marginal_cache import SETTLED, STALE, MarginalCache
 
 
 class Reads:

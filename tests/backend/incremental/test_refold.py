@@ -1,4 +1,4 @@
-"""A refine folds the whole history onto the keyframes (geometry/refold.py): with several
+"""A refine folds the whole history onto the keyframes (backend/incremental/refold.py): with several
 robots sharing landmarks, into one dense factor over every keyframe, which iSAM2 would
 re-eliminate at every step after (issue 11). A refine during the survey refuses such a
 fold and relinearises the keyframe graph instead."""
@@ -7,8 +7,8 @@ import itertools
 
 import numpy as np
 
+from agrislam.backend import RelativePosition, detection_covariance, make_backend
 from agrislam.config import RowsConfig, SlamConfig
-from agrislam.geometry.backend import RelativePosition, detection_covariance, make_backend
 from agrislam.geometry.se2 import compose, rotation
 
 LANDMARKS = np.array([[2.0, 0.0], [0.0, 2.0], [-2.0, 0.0], [0.0, -2.0]])

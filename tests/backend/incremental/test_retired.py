@@ -1,4 +1,4 @@
-"""What iSAM2 lets go of (geometry/retired.py): retired rows, poses between their
+"""What iSAM2 lets go of (backend/incremental/retired.py): retired rows, poses between their
 window's keyframes, deferred covariances, frozen keyframes and the factors that tie a
 retired object back."""
 
@@ -7,8 +7,8 @@ import pickle
 import gtsam
 import numpy as np
 
-from agrislam.geometry.batch import values_at
-from agrislam.geometry.retired import (
+from agrislam.backend.batch import values_at
+from agrislam.backend.incremental.retired import (
     Anchored,
     FrozenKeyframes,
     Retired,

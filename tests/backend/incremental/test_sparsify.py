@@ -1,4 +1,4 @@
-"""A fold's dense marginal over many keyframes made sparse (geometry/sparsify.py)."""
+"""A fold's dense marginal over many keyframes made sparse (backend/incremental/sparsify.py)."""
 
 import itertools
 from collections import Counter
@@ -7,12 +7,12 @@ import gtsam
 import numpy as np
 import pytest
 
+from agrislam.backend.graph import POSE, key_kind, object_key, pose_key
+from agrislam.backend.incremental import sparsify
+from agrislam.backend.incremental.backend import IncrementalBackend
+from agrislam.backend.incremental.sparsify import DIM, junction_tree, sparsified, tree_parents
 from agrislam.config import AgrislamConfig
-from agrislam.geometry import sparsify
-from agrislam.geometry.graph import POSE, key_kind, object_key, pose_key
-from agrislam.geometry.incremental import IncrementalBackend
-from agrislam.geometry.sparsify import DIM, junction_tree, sparsified, tree_parents
-from agrislam.pipeline import run_survey
+from agrislam.run.pipeline import run_survey
 from agrislam.sim.arena import ArenaSimulator
 from agrislam.sim.config import ArenaConfig
 from agrislam.world import WorldModel

@@ -7,20 +7,20 @@ import pytest
 
 from agrislam.config import AgrislamConfig
 from agrislam.geometry.se2 import quaternion_from_yaw, yaw_from_quaternion
-from agrislam.perception.camera import (
+from agrislam.io.perception.camera import (
     PinholeCamera,
     camera_mount,
     rotation_from_quaternion,
 )
-from agrislam.perception.config import PerceptionConfig
-from agrislam.perception.mask_depth import (
+from agrislam.io.perception.config import PerceptionConfig
+from agrislam.io.perception.mask_depth import (
     DepthRejectedError,
     box_region,
     estimate_position,
     green_pixels,
     inlier_depths,
 )
-from agrislam.perception.synthetic import (
+from agrislam.io.perception.synthetic import (
     FacingDisc,
     Sphere,
     instance_box,

@@ -6,11 +6,11 @@ import numpy as np
 import pytest
 
 from agrislam.config import FieldSchema
-from agrislam.perception.camera import PinholeCamera, camera_mount
-from agrislam.perception.config import PerceptionConfig
-from agrislam.perception.detector import ImageDetection, RgbdDetector
-from agrislam.perception.label_map import LabelMap
-from agrislam.perception.synthetic import (
+from agrislam.io.perception.camera import PinholeCamera, camera_mount
+from agrislam.io.perception.config import PerceptionConfig
+from agrislam.io.perception.detector import ImageDetection, RgbdDetector
+from agrislam.io.perception.label_map import LabelMap
+from agrislam.io.perception.synthetic import (
     FacingDisc,
     Sphere,
     instance_box,

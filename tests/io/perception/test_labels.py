@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 from agrislam.config import FieldSchema
-from agrislam.perception.camera import PinholeCamera
-from agrislam.perception.label_map import LabelMap, UnknownLabelError
-from agrislam.perception.length import length_from_box
+from agrislam.io.perception.camera import PinholeCamera
+from agrislam.io.perception.label_map import LabelMap, UnknownLabelError
+from agrislam.io.perception.length import length_from_box
 from agrislam.records import ContinuousMeasurement, Detection, DiscreteMeasurement
 
 CROPS = FieldSchema.preset("crops_weeds")  # type crop/weed, size s/m/b, health healthy/diseased

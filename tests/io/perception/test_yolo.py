@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from agrislam.perception.yolo_onnx import (
+from agrislam.io.perception.yolo_onnx import (
     Letterbox,
     YoloSegOnnx,
     class_names_from_metadata,

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from agrislam.config import COLOURS, SIZES, FieldSchema
-from agrislam.sinks import csv as sinks_csv
-from agrislam.sinks.csv import write_objects_csv, write_trajectory_csv
+from agrislam.io.sinks import csv as sinks_csv
+from agrislam.io.sinks.csv import write_objects_csv, write_trajectory_csv
 from agrislam.snapshot import MapSnapshot, ObjectMap
 
 

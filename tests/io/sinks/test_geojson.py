@@ -10,14 +10,14 @@ import math
 import numpy as np
 import pytest
 
-from agrislam.records import Anchor
-from agrislam.sinks import geojson
-from agrislam.sinks.geojson import (
+from agrislam.io.sinks import geojson
+from agrislam.io.sinks.geojson import (
     geojson_dict,
     map_to_lonlat,
     position_sigma,
     write_geojson,
 )
+from agrislam.records import Anchor
 
 A, E2 = 6_378_137.0, 0.006_694_379_990_14  # WGS84 semi-major axis and e^2 (NIMA TR8350.2)
 

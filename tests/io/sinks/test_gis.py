@@ -17,9 +17,9 @@ from isoxml.util.isoxml_io import isoxml_from_path
 
 from agrislam.config import COLOURS, OutputsConfig
 from agrislam.geometry.geodesy import MapFrame
-from agrislam.sinks.geopackage import write_geopackage
-from agrislam.sinks.isoxml import MM3_PER_M2_PER_L_HA, write_isoxml
-from agrislam.sinks.shapefile import write_shapefile
+from agrislam.io.sinks.geopackage import write_geopackage
+from agrislam.io.sinks.isoxml import MM3_PER_M2_PER_L_HA, write_isoxml
+from agrislam.io.sinks.shapefile import write_shapefile
 
 # "weeds" of the sample map: plants most likely of the first colour
 WEEDS = OutputsConfig(weed_attribute="colour", weed_value=COLOURS[0], weed_min_p=0.3)

@@ -13,8 +13,8 @@ from matplotlib.colors import to_rgba
 from matplotlib.image import imread
 
 from agrislam.config import COLOURS, FieldSchema
-from agrislam.sinks.readouts import value_colours
-from agrislam.sinks.report import _headline, _marker_size, write_attribute_maps, write_report
+from agrislam.io.sinks.readouts import value_colours
+from agrislam.io.sinks.report import _headline, _marker_size, write_attribute_maps, write_report
 from agrislam.snapshot import MapSnapshot, ObjectMap
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
@@ -177,7 +177,7 @@ def test_a_few_trees_over_a_park_are_drawn_larger_than_a_dense_field():
 
 
 def test_a_large_interest_surface_is_drawn_as_block_means():
-    from agrislam.sinks.report import coarsened
+    from agrislam.io.sinks.report import coarsened
 
     values = np.arange(7 * 10, dtype=np.float32).reshape(7, 10)
     same, block = coarsened(values, most=10)

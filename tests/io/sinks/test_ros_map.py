@@ -13,8 +13,8 @@ from matplotlib.colors import to_rgba
 from rosbags.highlevel import AnyReader
 
 from agrislam.geometry.se2 import yaw_from_quaternion
-from agrislam.sinks.ros_map import write_map_mcap
-from agrislam.sinks.scene import covariance_ellipses, plant_style
+from agrislam.io.sinks.ros_map import write_map_mcap
+from agrislam.io.sinks.scene import covariance_ellipses, plant_style
 from agrislam.snapshot import MapSnapshot
 
 COLOURS = ["blue", "cyan", "green", "orange", "pink", "red", "yellow"]  # conftest's schema
@@ -93,8 +93,8 @@ def test_messages_written_item_by_item_are_the_whole_messages(
 ) -> None:
     """The MarkerArray and Paths are serialised marker by marker and pose by pose (no
     100,000 marker objects at once): byte for byte the whole message's serialisation."""
-    from agrislam.ros.messages import MARKER_ARRAY, PATH, MessageFactory
-    from agrislam.sinks.ros_map import plant_markers, snapshot_time, trajectory_path
+    from agrislam.io.ros.messages import MARKER_ARRAY, PATH, MessageFactory
+    from agrislam.io.sinks.ros_map import plant_markers, snapshot_time, trajectory_path
 
     snap = sample_snapshot
     path = write_map_mcap(snap, tmp_path / "map.mcap", "colour")
@@ -214,7 +214,7 @@ def read_foxglove(path: Path) -> dict[str, Any]:
 
 def test_foxglove_scene(tmp_path: Path, sample_snapshot: MapSnapshot) -> None:
     pytest.importorskip("foxglove")
-    from agrislam.sinks.foxglove import write_foxglove_mcap
+    from agrislam.io.sinks.foxglove import write_foxglove_mcap
 
     snap = sample_snapshot
     path = write_foxglove_mcap(snap, tmp_path / "scene.mcap", "size")
@@ -261,7 +261,7 @@ def test_foxglove_plants_of_a_large_map_go_out_in_several_scene_updates(
     tmp_path: Path, sample_snapshot: MapSnapshot
 ) -> None:
     pytest.importorskip("foxglove")
-    from agrislam.sinks.foxglove import write_foxglove_mcap
+    from agrislam.io.sinks.foxglove import write_foxglove_mcap
 
     path = write_foxglove_mcap(sample_snapshot, tmp_path / "s.mcap", entities_per_message=7)
     parts = [
@@ -282,7 +282,7 @@ def test_foxglove_plants_and_trajectories_encoded_item_by_item(
     from foxglove import messages as m
     from mcap.reader import make_reader
 
-    from agrislam.sinks.foxglove import _pose, _timestamp, plant_entities, write_foxglove_mcap
+    from agrislam.io.sinks.foxglove import _pose, _timestamp, plant_entities, write_foxglove_mcap
 
     snap = sample_snapshot
     path = write_foxglove_mcap(snap, tmp_path / "scene.mcap", "size", stamp=12.5)
@@ -315,7 +315,7 @@ def test_foxglove_plants_and_trajectories_encoded_item_by_item(
 
 def test_protobuf_varint() -> None:
     pytest.importorskip("foxglove")
-    from agrislam.sinks.foxglove import _varint
+    from agrislam.io.sinks.foxglove import _varint
 
     assert [_varint(n) for n in (0, 1, 127, 128, 300, 2**14)] == [
         b"\x00",

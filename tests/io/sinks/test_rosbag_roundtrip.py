@@ -12,7 +12,12 @@ import numpy as np
 import pytest
 
 from agrislam.config import AgrislamConfig, FieldSchema
-from agrislam.perception.label_map import LabelMap
+from agrislam.io.perception.label_map import LabelMap
+from agrislam.io.sinks.jsonl import record_to_json
+from agrislam.io.sinks.rosbag import write_survey_bag
+from agrislam.io.sources.bag_config import BagSourceConfig
+from agrislam.io.sources.bag_report import BagReport
+from agrislam.io.sources.rosbag import BagSource
 from agrislam.records import (
     ContinuousMeasurement,
     Detection,
@@ -26,11 +31,6 @@ from agrislam.records import (
 )
 from agrislam.sim.config import SimConfig
 from agrislam.sim.simulator import Simulator
-from agrislam.sinks.jsonl import record_to_json
-from agrislam.sinks.rosbag import write_survey_bag
-from agrislam.sources.bag_config import BagSourceConfig
-from agrislam.sources.bag_report import BagReport
-from agrislam.sources.rosbag import BagSource
 
 
 def open_bag(

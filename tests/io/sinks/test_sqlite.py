@@ -9,8 +9,8 @@ from contextlib import closing
 import numpy as np
 import pytest
 
-from agrislam.sinks import sqlite as sqlite_sink
-from agrislam.sinks.sqlite import FORMAT_VERSION, load_map, save_map
+from agrislam.io.sinks import sqlite as sqlite_sink
+from agrislam.io.sinks.sqlite import FORMAT_VERSION, load_map, save_map
 from agrislam.snapshot import MapSnapshot, ObjectMap
 
 

@@ -12,6 +12,12 @@ import pytest
 from rosbags.highlevel import AnyReader
 
 from agrislam.config import FieldSchema
+from agrislam.io.ros.conventions import META_TOPIC, TRUTH_TOPIC
+from agrislam.io.ros.messages import DETECTION3D_ARRAY, ODOMETRY, STRING
+from agrislam.io.sinks import jsonl as jsonl_sink
+from agrislam.io.sinks import log_lines
+from agrislam.io.sinks.jsonl import LogWriter, write_log
+from agrislam.io.sinks.rosbag import write_survey_bag
 from agrislam.records import (
     Detection,
     Detections,
@@ -22,12 +28,6 @@ from agrislam.records import (
     TruthObject,
     TruthPose,
 )
-from agrislam.ros.conventions import META_TOPIC, TRUTH_TOPIC
-from agrislam.ros.messages import DETECTION3D_ARRAY, ODOMETRY, STRING
-from agrislam.sinks import jsonl as jsonl_sink
-from agrislam.sinks import log_lines
-from agrislam.sinks.jsonl import LogWriter, write_log
-from agrislam.sinks.rosbag import write_survey_bag
 
 
 def survey() -> list[Record]:

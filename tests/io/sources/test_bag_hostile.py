@@ -8,15 +8,15 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from test_rosbag_inputs import bag, kinds, odom, read
 
-from agrislam.ros.messages import DETECTION3D_ARRAY, ODOMETRY, STRING, MessageFactory
+from agrislam.io.ros.messages import DETECTION3D_ARRAY, ODOMETRY, STRING, MessageFactory
+from agrislam.io.sinks.rosbag import write_survey_bag
+from agrislam.io.sources import open_source
+from agrislam.io.sources.jsonl import LogError
+from agrislam.io.sources.rosbag import BagSource
 from agrislam.sim.config import SimConfig
 from agrislam.sim.simulator import Simulator
-from agrislam.sinks.rosbag import write_survey_bag
-from agrislam.sources import open_source
-from agrislam.sources.jsonl import LogError
-from agrislam.sources.rosbag import BagSource
-from test_rosbag_inputs import bag, kinds, odom, read
 
 
 @pytest.fixture(scope="module")

@@ -18,14 +18,14 @@ from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from agrislam.config import AgrislamConfig
-from agrislam.pipeline import RunError, run_survey
+from agrislam.io.sinks.jsonl import record_to_json
+from agrislam.io.sinks.rosbag import write_survey_bag
+from agrislam.io.sinks.run_folder import OUTPUT_NAMES
+from agrislam.io.sources import SourceError, open_source
+from agrislam.io.sources.jsonl import REASONS, LogError, read_log
+from agrislam.run.pipeline import RunError, run_survey
 from agrislam.sim.config import SimConfig
 from agrislam.sim.simulator import Simulator
-from agrislam.sinks.jsonl import record_to_json
-from agrislam.sinks.rosbag import write_survey_bag
-from agrislam.sinks.run_folder import OUTPUT_NAMES
-from agrislam.sources import SourceError, open_source
-from agrislam.sources.jsonl import REASONS, LogError, read_log
 from agrislam.world import WorldModel
 from log_mutations import N_KINDS, as_log, mutate
 

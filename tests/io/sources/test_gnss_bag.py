@@ -8,15 +8,15 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from test_rosbag_roundtrip import assert_same_records
 
+from agrislam.io.ros.navsat import FIX, GBAS_FIX, NO_FIX, SBAS_FIX, fix_type
+from agrislam.io.sinks.rosbag import write_survey_bag
+from agrislam.io.sources.bag_config import BagSourceConfig
+from agrislam.io.sources.rosbag import BagSource
 from agrislam.records import GnssFix, Record
-from agrislam.ros.navsat import FIX, GBAS_FIX, NO_FIX, SBAS_FIX, fix_type
 from agrislam.sim.config import SimConfig
 from agrislam.sim.simulator import Simulator
-from agrislam.sinks.rosbag import write_survey_bag
-from agrislam.sources.bag_config import BagSourceConfig
-from agrislam.sources.rosbag import BagSource
-from test_rosbag_roundtrip import assert_same_records
 
 
 @pytest.fixture(scope="module")

@@ -9,9 +9,9 @@ import json
 import numpy as np
 import pytest
 
+from agrislam.io.sinks.jsonl import record_to_json, write_log
+from agrislam.io.sources.jsonl import LogError, read_log
 from agrislam.records import GnssFix, Odometry
-from agrislam.sinks.jsonl import record_to_json, write_log
-from agrislam.sources.jsonl import LogError, read_log
 
 META = {"type": "meta", "version": 1}
 ODOM = {"type": "odom", "t": 0.5, "robot": "r1", "delta": [0.1, 0.0, 0.0]}

@@ -6,6 +6,8 @@ import numpy as np
 import pytest
 
 from agrislam.config import FieldSchema
+from agrislam.io.sinks.jsonl import record_to_json, write_log
+from agrislam.io.sources.jsonl import REASONS, LogError, read_log
 from agrislam.records import (
     Anchor,
     ContinuousMeasurement,
@@ -19,8 +21,6 @@ from agrislam.records import (
     TruthObject,
     TruthPose,
 )
-from agrislam.sinks.jsonl import record_to_json, write_log
-from agrislam.sources.jsonl import REASONS, LogError, read_log
 
 SCHEMA = {
     "attributes": {

@@ -16,10 +16,9 @@ from rosbags.typesys import get_types_from_msg
 
 from agrislam.config import AgrislamConfig
 from agrislam.geometry.se2 import quaternion_from_yaw
-from agrislam.perception.camera import camera_mount, rigid_transform
-from agrislam.perception.synthetic import FacingDisc, instance_box, render_depth
-from agrislam.records import Detections, DiscreteMeasurement, Odometry, Record
-from agrislam.ros.messages import (
+from agrislam.io.perception.camera import camera_mount, rigid_transform
+from agrislam.io.perception.synthetic import FacingDisc, instance_box, render_depth
+from agrislam.io.ros.messages import (
     CAMERA_INFO,
     DETECTION2D_ARRAY,
     DETECTION3D_ARRAY,
@@ -29,9 +28,10 @@ from agrislam.ros.messages import (
     MessageFactory,
     open_ros2_writer,
 )
-from agrislam.sources.bag_config import BagSourceConfig
-from agrislam.sources.bag_report import BagReport
-from agrislam.sources.rosbag import BagSource
+from agrislam.io.sources.bag_config import BagSourceConfig
+from agrislam.io.sources.bag_report import BagReport
+from agrislam.io.sources.rosbag import BagSource
+from agrislam.records import Detections, DiscreteMeasurement, Odometry, Record
 
 CROPS = AgrislamConfig.model_validate({"schema": "crops_weeds"})
 Write = Callable[[str, str, Any, float], None]
@@ -167,7 +167,7 @@ CLASS_IDS = {"crop_small": 0, "crop_big": 1, "weed_big": 2}
 
 
 def rgbd_bag(path: Path, make: MessageFactory, storage: str = "mcap") -> None:
-    from agrislam.perception.camera import PinholeCamera
+    from agrislam.io.perception.camera import PinholeCamera
 
     cam = PinholeCamera.from_camera_info(K, 320, 240, camera_to_base=OPTICAL)
     depth, instance = render_depth(cam, PLANTS)

@@ -11,16 +11,16 @@ import pytest
 from rosbags.rosbag1 import Writer as Ros1Writer
 
 from agrislam.config import AgrislamConfig
+from agrislam.io.ros.messages import ODOMETRY, MessageFactory
+from agrislam.io.sinks.jsonl import record_to_json, write_log
+from agrislam.io.sinks.rosbag import write_survey_bag
+from agrislam.io.sources import SUPPORTED, Source, SourceError, open_source
+from agrislam.io.sources.jsonl import LogError, LogReader
+from agrislam.io.sources.rosbag import BagSource
+from agrislam.io.sources.simulated import SimulatedSource, simulation_config, simulation_uri
 from agrislam.records import Detections, Meta, Odometry, Record
-from agrislam.ros.messages import ODOMETRY, MessageFactory
 from agrislam.sim.config import SimConfig
 from agrislam.sim.simulator import Simulator
-from agrislam.sinks.jsonl import record_to_json, write_log
-from agrislam.sinks.rosbag import write_survey_bag
-from agrislam.sources import SUPPORTED, Source, SourceError, open_source
-from agrislam.sources.jsonl import LogError, LogReader
-from agrislam.sources.rosbag import BagSource
-from agrislam.sources.simulated import SimulatedSource, simulation_config, simulation_uri
 
 SMALL = {"field": {"n_plants": 30, "n_rows": 3}}
 

@@ -2,8 +2,7 @@ import numpy as np
 import pytest
 
 from agrislam.geometry.se2 import compose
-from agrislam.records import Detection, Detections, Odometry, TruthPose
-from agrislam.sources.sync import (
+from agrislam.io.sources.sync import (
     AFTER_LAST,
     BEFORE_FIRST,
     interpolate_increment,
@@ -11,6 +10,7 @@ from agrislam.sources.sync import (
     se2_log,
     synchronise,
 )
+from agrislam.records import Detection, Detections, Odometry, TruthPose
 
 COV = np.diag([1e-2, 4e-3, 1e-3])
 

@@ -32,19 +32,9 @@ import math
 import gtsam
 import numpy as np
 
-from agrislam.config import RowsConfig, SlamConfig
-from agrislam.geometry.base import BackendBase, pose_array
-from agrislam.geometry.batch import insert_value, solve, value_array, values_at
-from agrislam.geometry.conditioning import (
-    components,
-    covariances_given,
-    indeterminate_key,
-    marginalised,
-    shared_copy,
-    weakly_held,
-)
-from agrislam.geometry.drift import adjoint
-from agrislam.geometry.graph import (
+from agrislam.backend.base import BackendBase, pose_array
+from agrislam.backend.batch import insert_value, solve, value_array, values_at
+from agrislam.backend.graph import (
     POSE,
     ROW,
     SurveyGraph,
@@ -53,7 +43,15 @@ from agrislam.geometry.graph import (
     key_kind,
     make_factor,
 )
-from agrislam.geometry.isam_state import (
+from agrislam.backend.incremental.conditioning import (
+    components,
+    covariances_given,
+    indeterminate_key,
+    marginalised,
+    shared_copy,
+    weakly_held,
+)
+from agrislam.backend.incremental.isam_state import (
     Entry,
     PendingUpdate,
     SlotTable,
@@ -63,12 +61,19 @@ from agrislam.geometry.isam_state import (
     restore_isam2,
     serialised_isam2,
 )
-from agrislam.geometry.key_table import KeyTable
-from agrislam.geometry.marginal_cache import MarginalCache
-from agrislam.geometry.refold import refold
-from agrislam.geometry.retired import Anchored, FrozenKeyframes, RetiredObjects, RetiredPoses
+from agrislam.backend.incremental.marginal_cache import MarginalCache
+from agrislam.backend.incremental.refold import refold
+from agrislam.backend.incremental.retired import (
+    Anchored,
+    FrozenKeyframes,
+    RetiredObjects,
+    RetiredPoses,
+)
+from agrislam.backend.incremental.sparsify import sparsified
+from agrislam.backend.key_table import KeyTable
+from agrislam.config import RowsConfig, SlamConfig
+from agrislam.geometry.drift import adjoint
 from agrislam.geometry.se2 import between, compose, pose_uncertainty_at, rotation, to_robot_frame
-from agrislam.geometry.sparsify import sparsified
 
 FOLD_ITERATIONS = 2  # Gauss-Newton iterations on the window before it is folded away
 SLOTS_SLACK, SLOTS_FLOOR = 8, 8000  # iSAM2 rebuilt when its slots pass slack x live + floor
@@ -341,7 +346,7 @@ class IncrementalBackend(BackendBase):
 
     def _newest(self) -> set[int]:
         """Each robot's NEWEST_EXACT newest keyframes: a fold's marginal keeps their joint
-        exact (geometry/sparsify.py); the current poses and objects hang from them."""
+        exact (backend/incremental/sparsify.py); the current poses and objects hang from them."""
         return {k for frames in self._keyframes.values() for k in frames[-NEWEST_EXACT:]}
 
     def _aged_keyframes(self) -> set[int]:

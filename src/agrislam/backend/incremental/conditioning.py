@@ -1,4 +1,4 @@
-"""A window's graph made solvable on its own (geometry/incremental.py folds it away):
+"""A window's graph made solvable on its own (backend/incremental/backend.py folds it away):
 conditioned on one keyframe, cut to the part connected to it, and with every node GTSAM
 finds indeterminate held by a weak prior, so that degenerate geometry (an object seen along
 one ray only, a robot that shares a single landmark yet) costs that node's certainty and
@@ -17,8 +17,8 @@ import scipy.sparse as sp
 from scipy.linalg import solve_triangular
 from threadpoolctl import ThreadpoolController
 
-from agrislam.geometry.batch import insert_value, value_array
-from agrislam.geometry.graph import POSE, key_kind
+from agrislam.backend.batch import insert_value, value_array
+from agrislam.backend.graph import POSE, key_kind
 from agrislam.geometry.se2 import rotation
 
 T = TypeVar("T")
@@ -200,7 +200,7 @@ def covariances_given(
 ) -> list[np.ndarray]:
     """Covariances of objects `keys` given `keyframe` in its frame, from the part of the
     graph around connected to it (`parts()[keyframe]`, `components`); failing that,
-    FREE_SIGMA wide (a keyframe fold, geometry/incremental.py)."""
+    FREE_SIGMA wide (a keyframe fold, backend/incremental/backend.py)."""
     local, nodes = parts()[keyframe]
     free = [k for k in blanket if k in nodes]
 

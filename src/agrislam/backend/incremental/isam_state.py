@@ -1,4 +1,4 @@
-"""The incremental back end's state (geometry/incremental.py), in parts with one rule each:
+"""The incremental back end's state (backend/incremental/backend.py), in parts with one rule each:
 
 - `PendingUpdate`: what the next iSAM2 update adds (factors, new nodes with their initial
   values) and removes (factor slots). `flush` hands it to `ISAM2.update` and clears it. A
@@ -6,7 +6,7 @@
 - `SlotTable`: what each live iSAM2 factor slot holds (a factor of the record, a retired
   object's anchor, or history folded onto keyframes and rows) and the keys it touches.
 
-What iSAM2 lets go of is held in geometry/retired.py.
+What iSAM2 lets go of is held in backend/incremental/retired.py.
 """
 
 from __future__ import annotations
@@ -18,10 +18,10 @@ from typing import TypeVar
 import gtsam
 import numpy as np
 
+from agrislam.backend.batch import insert_value, value_array
+from agrislam.backend.graph import key_kind
+from agrislam.backend.incremental.retired import Anchored
 from agrislam.config import SlamConfig
-from agrislam.geometry.batch import insert_value, value_array
-from agrislam.geometry.graph import key_kind
-from agrislam.geometry.retired import Anchored
 
 Serialisable = TypeVar("Serialisable", gtsam.NonlinearFactorGraph, gtsam.Values)
 

@@ -19,7 +19,7 @@ from collections.abc import Callable, Iterable
 import gtsam
 import numpy as np
 
-from agrislam.geometry.key_table import KeyTable
+from agrislam.backend.key_table import KeyTable
 
 SETTLED = 5  # sightings after which one more does not call for a fresh read
 STALE = 10  # a covariance with no new factor on its node serves STALE x `reuse` steps

@@ -1,5 +1,5 @@
 """A refine's whole history folded onto the live nodes at the batch solution
-(geometry/incremental.py, `refine`): the record's factors among the live nodes stay as
+(backend/incremental/backend.py, `refine`): the record's factors among the live nodes stay as
 they are (nonlinear), the rest is marginalised onto them exactly.
 
 The marginal ties together every live node one eliminated node's factors reach: with
@@ -14,8 +14,8 @@ from dataclasses import dataclass, field
 
 import gtsam
 
-from agrislam.geometry.batch import insert_value, value_array
-from agrislam.geometry.graph import SurveyGraph
+from agrislam.backend.batch import insert_value, value_array
+from agrislam.backend.graph import SurveyGraph
 
 
 @dataclass

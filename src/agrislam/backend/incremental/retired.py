@@ -1,4 +1,4 @@
-"""Nodes folded out of iSAM2 (geometry/incremental.py), as rows of arrays so that many
+"""Nodes folded out of iSAM2 (backend/incremental/backend.py), as rows of arrays so that many
 are placed at once:
 
 - `Retired` / `RetiredObjects` / `RetiredPoses`: each node held relative to a keyframe (a
@@ -17,8 +17,8 @@ from dataclasses import dataclass
 import gtsam
 import numpy as np
 
-from agrislam.geometry.batch import value_array, values_at
-from agrislam.geometry.key_table import KeyTable
+from agrislam.backend.batch import value_array, values_at
+from agrislam.backend.key_table import KeyTable
 from agrislam.geometry.noise import gaussian, relative_to_range_bearing
 from agrislam.geometry.se2 import (
     between,

@@ -1,4 +1,4 @@
-"""A fold's dense marginal over many keyframes made sparse (geometry/incremental.py,
+"""A fold's dense marginal over many keyframes made sparse (backend/incremental/backend.py,
 `_fold`): the newest keyframes' joint kept exact, the older ones hung from it by a
 Chow-Liu tree.
 
@@ -22,7 +22,7 @@ import numpy as np
 from scipy.sparse import csr_array
 from scipy.sparse.csgraph import breadth_first_order, minimum_spanning_tree
 
-from agrislam.geometry.graph import POSE, key_kind, robot_index_of
+from agrislam.backend.graph import POSE, key_kind, robot_index_of
 
 # a marginal over more keyframes than this is replaced by its tree (fewer: kept exact)
 TREE_ABOVE = 20

@@ -2,12 +2,12 @@
 length from the box, the YOLOv8-seg ONNX adapter (optional onnxruntime) and the front end
 that turns one frame into `records.Detections`."""
 
-from agrislam.perception.camera import PinholeCamera, camera_mount
-from agrislam.perception.config import PerceptionConfig
-from agrislam.perception.detector import FrameResult, ImageDetection, RgbdDetector
-from agrislam.perception.label_map import LabelMap, UnknownLabelError
-from agrislam.perception.length import length_from_box
-from agrislam.perception.mask_depth import DepthRejectedError, estimate_position
+from agrislam.io.perception.camera import PinholeCamera, camera_mount
+from agrislam.io.perception.config import PerceptionConfig
+from agrislam.io.perception.detector import FrameResult, ImageDetection, RgbdDetector
+from agrislam.io.perception.label_map import LabelMap, UnknownLabelError
+from agrislam.io.perception.length import length_from_box
+from agrislam.io.perception.mask_depth import DepthRejectedError, estimate_position
 
 __all__ = [
     "DepthRejectedError",

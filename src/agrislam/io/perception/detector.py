@@ -14,11 +14,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from agrislam.perception.camera import PinholeCamera
-from agrislam.perception.config import PerceptionConfig
-from agrislam.perception.label_map import LabelMap, UnknownLabelError
-from agrislam.perception.length import length_from_box
-from agrislam.perception.mask_depth import (
+from agrislam.io.perception.camera import PinholeCamera
+from agrislam.io.perception.config import PerceptionConfig
+from agrislam.io.perception.label_map import LabelMap, UnknownLabelError
+from agrislam.io.perception.length import length_from_box
+from agrislam.io.perception.mask_depth import (
     DepthRejectedError,
     box_region,
     depth_in_metres,

@@ -11,7 +11,7 @@ from typing import Literal
 
 import numpy as np
 
-from agrislam.perception.camera import PinholeCamera
+from agrislam.io.perception.camera import PinholeCamera
 from agrislam.records import ContinuousMeasurement
 
 

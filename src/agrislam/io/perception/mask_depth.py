@@ -14,8 +14,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from agrislam.perception.camera import PinholeCamera
-from agrislam.perception.config import PerceptionConfig
+from agrislam.io.perception.camera import PinholeCamera
+from agrislam.io.perception.config import PerceptionConfig
 
 MAD_TO_SIGMA = 1.4826  # MAD of a normal distribution times this is its sigma
 

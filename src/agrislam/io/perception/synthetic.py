@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from agrislam.perception.camera import PinholeCamera
+from agrislam.io.perception.camera import PinholeCamera
 
 GROUND_RGB = (110, 80, 50)  # soil
 PLANT_RGB = (40, 160, 40)

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from agrislam.perception.detector import ImageDetection
+from agrislam.io.perception.detector import ImageDetection
 
 PAD_VALUE = 114  # ultralytics letterbox grey
 

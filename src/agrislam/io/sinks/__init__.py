@@ -6,10 +6,10 @@ helper modules `columns` (object and trajectory tables), `readouts` (belief read
 most probable value, sureness, colours) and `scene` (how a plant is drawn in 3D), which
 write nothing."""
 
-from agrislam.sinks.csv import write_objects_csv, write_trajectory_csv
-from agrislam.sinks.geojson import map_to_lonlat, write_geojson
-from agrislam.sinks.report import write_attribute_maps, write_report
-from agrislam.sinks.sqlite import load_map, save_map
+from agrislam.io.sinks.csv import write_objects_csv, write_trajectory_csv
+from agrislam.io.sinks.geojson import map_to_lonlat, write_geojson
+from agrislam.io.sinks.report import write_attribute_maps, write_report
+from agrislam.io.sinks.sqlite import load_map, save_map
 
 __all__ = [
     "load_map",

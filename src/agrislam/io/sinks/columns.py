@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from agrislam.sinks.readouts import discrete_columns, most_probable
+from agrislam.io.sinks.readouts import discrete_columns, most_probable
 from agrislam.snapshot import MapSnapshot, ObjectMap, Trajectory
 
 STATUS_NAME = "active"  # a snapshot carries the active objects only (snapshot.STATUS_ACTIVE)

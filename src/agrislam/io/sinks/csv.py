@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from agrislam.sinks.columns import object_columns, trajectory_columns
+from agrislam.io.sinks.columns import object_columns, trajectory_columns
 from agrislam.snapshot import MapSnapshot
 
 FLOAT_FORMAT = "{:.9g}".format  # 9 significant digits: 0.1 mm at 10 km, 1e-9 in probabilities

@@ -20,8 +20,8 @@ from typing import Any
 import numpy as np
 
 from agrislam.geometry.se2 import quaternion_from_yaw
-from agrislam.sinks.readouts import discrete_columns
-from agrislam.sinks.scene import covariance_ellipses, plant_style, row_segments, snapshot_time
+from agrislam.io.sinks.readouts import discrete_columns
+from agrislam.io.sinks.scene import covariance_ellipses, plant_style, row_segments, snapshot_time
 from agrislam.snapshot import MapSnapshot, Trajectory
 
 FRAME = "map"

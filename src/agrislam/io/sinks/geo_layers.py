@@ -13,8 +13,8 @@ import shapely
 
 from agrislam.config import OutputsConfig
 from agrislam.geometry.geodesy import MapFrame
-from agrislam.sinks.columns import TRAJECTORY_SOURCES, object_columns
-from agrislam.sinks.readouts import discrete_columns
+from agrislam.io.sinks.columns import TRAJECTORY_SOURCES, object_columns
+from agrislam.io.sinks.readouts import discrete_columns
 from agrislam.snapshot import MapSnapshot
 
 CRS = ("wgs84", "utm")

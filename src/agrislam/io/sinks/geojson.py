@@ -16,8 +16,8 @@ from typing import Any
 import numpy as np
 
 from agrislam.geometry.geodesy import MapFrame, check_anchor
+from agrislam.io.sinks.columns import object_columns
 from agrislam.records import Anchor
-from agrislam.sinks.columns import object_columns
 from agrislam.snapshot import MapSnapshot
 
 DEGREE_DECIMALS = 8  # 1e-8 deg: 1.1 mm of latitude

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from agrislam.sinks.geo_layers import CRS, map_frame, plants, rows, tracks, write_layer
+from agrislam.io.sinks.geo_layers import CRS, map_frame, plants, rows, tracks, write_layer
 from agrislam.snapshot import MapSnapshot
 
 

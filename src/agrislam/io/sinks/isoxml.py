@@ -22,8 +22,8 @@ from isoxml.util.isoxml_io import isoxml_to_zip
 from agrislam import __version__
 from agrislam.config import OutputsConfig
 from agrislam.geometry.geodesy import MapFrame
+from agrislam.io.sinks.geo_layers import map_frame, place, weeds
 from agrislam.records import Anchor
-from agrislam.sinks.geo_layers import map_frame, place, weeds
 from agrislam.snapshot import MapSnapshot
 
 RATE_DDI = 1  # Setpoint Volume Per Area Application Rate, mm^3/m^2

@@ -10,8 +10,8 @@ from collections.abc import Iterable
 from pathlib import Path
 from typing import IO
 
+from agrislam.io.sinks.log_lines import record_to_json
 from agrislam.records import Record
-from agrislam.sinks.log_lines import record_to_json
 
 __all__ = ["LogWriter", "record_to_json", "write_log"]
 

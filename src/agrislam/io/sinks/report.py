@@ -23,7 +23,7 @@ from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 from matplotlib.patches import Patch
 
-from agrislam.sinks.readouts import (
+from agrislam.io.sinks.readouts import (
     continuous_scale,
     continuous_sureness,
     discrete_columns,
@@ -154,7 +154,7 @@ def _title_lines(snapshot: MapSnapshot, title: str, metrics: Mapping[str, Any] |
 
 def _headline(metrics: Mapping[str, Any]) -> list[str]:
     """Headline lines under the title: the evaluation's key numbers when `metrics` is what
-    agrislam.evaluation writes (metrics.json), else its first scalar entries."""
+    agrislam.evaluation.metrics writes (metrics.json), else its first scalar entries."""
     return _evaluation_headline(metrics) or _scalar_headline(metrics)
 
 

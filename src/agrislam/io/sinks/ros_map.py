@@ -21,14 +21,14 @@ from pathlib import Path
 import numpy as np
 
 from agrislam.geometry.se2 import quaternion_from_yaw
-from agrislam.ros.messages import (
+from agrislam.io.ros.messages import (
     MARKER_ARRAY,
     PATH,
     MessageFactory,
     open_ros2_writer,
     seconds_to_ns,
 )
-from agrislam.sinks.scene import covariance_ellipses, plant_style, row_segments, snapshot_time
+from agrislam.io.sinks.scene import covariance_ellipses, plant_style, row_segments, snapshot_time
 from agrislam.snapshot import MapSnapshot, Trajectory
 
 PLANTS_TOPIC = "/agrislam/plants"

@@ -13,6 +13,24 @@ from typing import Any, Literal
 import numpy as np
 
 from agrislam.geometry.se2 import compose, quaternion_from_yaw
+from agrislam.io.ros.conventions import (
+    META_TOPIC,
+    POSE_COV_INDEX,
+    TRUTH_TOPIC,
+    UNKNOWN_COVARIANCE,
+    measurement_class_id,
+)
+from agrislam.io.ros.messages import (
+    DETECTION3D_ARRAY,
+    ODOMETRY,
+    STRING,
+    TF_MESSAGE,
+    MessageFactory,
+    open_ros2_writer,
+    seconds_to_ns,
+)
+from agrislam.io.ros.navsat import NAVSAT_FIX, navsat_message
+from agrislam.io.sinks.log_lines import record_to_json
 from agrislam.records import (
     Detection,
     Detections,
@@ -23,24 +41,6 @@ from agrislam.records import (
     TruthObject,
     TruthPose,
 )
-from agrislam.ros.conventions import (
-    META_TOPIC,
-    POSE_COV_INDEX,
-    TRUTH_TOPIC,
-    UNKNOWN_COVARIANCE,
-    measurement_class_id,
-)
-from agrislam.ros.messages import (
-    DETECTION3D_ARRAY,
-    ODOMETRY,
-    STRING,
-    TF_MESSAGE,
-    MessageFactory,
-    open_ros2_writer,
-    seconds_to_ns,
-)
-from agrislam.ros.navsat import NAVSAT_FIX, navsat_message
-from agrislam.sinks.log_lines import record_to_json
 
 
 class _SurveyBagWriter:
@@ -166,7 +166,7 @@ def write_survey_bag(
     none); the covariance in the hypothesis pose; truth_id as ``id``; range/bearing
     detections as position + ray covariance). Meta, TruthPose and TruthObject ->
     ``/agrislam/meta`` and ``/agrislam/truth`` as survey-log JSON lines (std_msgs/String).
-    GNSS fixes -> ``/<robot>/gnss/fix`` (sensor_msgs/NavSatFix, ros/navsat.py), the antenna
+    GNSS fixes -> ``/<robot>/gnss/fix`` (sensor_msgs/NavSatFix, io/ros/navsat.py), the antenna
     as ``/tf_static`` from ``<robot>/base_link`` to ``<robot>/gnss_link``.
     """
     with open_ros2_writer(path, storage) as writer:

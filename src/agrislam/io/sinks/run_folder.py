@@ -20,7 +20,7 @@ from pathlib import Path
 from types import TracebackType
 from typing import Any
 
-from agrislam.sinks.atomic import is_temporary, remove
+from agrislam.io.sinks.atomic import is_temporary, remove
 
 try:
     import fcntl

@@ -10,7 +10,7 @@ from dataclasses import dataclass
 import numpy as np
 from matplotlib import colormaps
 
-from agrislam.sinks.readouts import (
+from agrislam.io.sinks.readouts import (
     continuous_scale,
     continuous_sureness,
     discrete_columns,

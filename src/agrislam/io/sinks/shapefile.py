@@ -12,7 +12,7 @@ import numpy as np
 import shapely
 
 from agrislam.config import OutputsConfig
-from agrislam.sinks.geo_layers import Layer, map_frame, place, weeds, write_layer
+from agrislam.io.sinks.geo_layers import Layer, map_frame, place, weeds, write_layer
 from agrislam.snapshot import MapSnapshot
 
 LAYER = "prescription"

@@ -18,10 +18,10 @@ from typing import Any
 import numpy as np
 
 from agrislam.config import FieldSchema
+from agrislam.io.sinks.atomic import atomic_path
+from agrislam.io.sinks.readouts import discrete_columns
 from agrislam.records import Anchor
 from agrislam.semantics.heuristic import InterestSurface
-from agrislam.sinks.atomic import atomic_path
-from agrislam.sinks.readouts import discrete_columns
 from agrislam.snapshot import MapSnapshot, ObjectMap, RowLines, Trajectory
 
 FORMAT_NAME = "agrislam-map"

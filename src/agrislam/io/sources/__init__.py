@@ -16,12 +16,12 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from agrislam.sources.base import Source, SourceError, SourceReport
+from agrislam.io.sources.base import Source, SourceError, SourceReport
 
 if TYPE_CHECKING:
     from agrislam.config import AgrislamConfig
+    from agrislam.io.sources.bag_config import BagSourceConfig
     from agrislam.sim.config import SimConfig
-    from agrislam.sources.bag_config import BagSourceConfig
 
 __all__ = ["SUPPORTED", "Source", "SourceError", "SourceReport", "open_source"]
 
@@ -58,7 +58,7 @@ def open_source(
                 f"{path_or_uri!r}: unknown source scheme {match['scheme']!r}; supported: "
                 f"{SUPPORTED}"
             )
-        from agrislam.sources.simulated import SimulatedSource, simulation_config
+        from agrislam.io.sources.simulated import SimulatedSource, simulation_config
 
         return SimulatedSource(simulation_config(path_or_uri, sim))
     path = Path(path_or_uri)
@@ -67,12 +67,12 @@ def open_source(
     if not path.exists():
         raise FileNotFoundError(f"{path}: no such file or folder")
     if is_log:
-        from agrislam.sources.jsonl import read_log
+        from agrislam.io.sources.jsonl import read_log
 
         return read_log(path, strict=strict, config=config)
     if is_bag:
-        from agrislam.sources.bag_config import BagSourceConfig
-        from agrislam.sources.rosbag import BagSource
+        from agrislam.io.sources.bag_config import BagSourceConfig
+        from agrislam.io.sources.rosbag import BagSource
 
         if not isinstance(bag, BagSourceConfig):
             bag = BagSourceConfig.model_validate(bag or {})

@@ -8,9 +8,9 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from agrislam.perception.config import PerceptionConfig
-from agrislam.ros.conventions import META_TOPIC, TRUTH_TOPIC
-from agrislam.ros.messages import Layout
+from agrislam.io.perception.config import PerceptionConfig
+from agrislam.io.ros.conventions import META_TOPIC, TRUTH_TOPIC
+from agrislam.io.ros.messages import Layout
 
 
 class BagSourceConfig(BaseModel):

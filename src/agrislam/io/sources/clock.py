@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 from statistics import median
 from typing import Generic, TypeVar
 
-from agrislam.limits import InputLimits
+from agrislam.config.limits import InputLimits
 
 Item = TypeVar("Item")
 RECENT = 16  # intervals a robot's typical rate is taken from

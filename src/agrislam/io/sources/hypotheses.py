@@ -7,9 +7,9 @@ from __future__ import annotations
 import math
 from typing import Any
 
+from agrislam.io.ros.conventions import is_measurement_class_id, measurement_of_class_id
+from agrislam.io.sources.bag_report import SkipError
 from agrislam.records import Measurement
-from agrislam.ros.conventions import is_measurement_class_id, measurement_of_class_id
-from agrislam.sources.bag_report import SkipError
 
 
 def hypotheses(results: Any) -> list[tuple[str, float, Any]]:

@@ -27,7 +27,11 @@ from agrislam.config import (
     InputLimits,
     SensorDefaults,
 )
-from agrislam.limits import first_error
+from agrislam.config.limits import first_error
+from agrislam.io.sources.clock import Rejected, RobotClocks
+from agrislam.io.sources.log_report import LogError, ReadReport
+from agrislam.io.sources.odometry_gaps import OdometryGaps
+from agrislam.io.sources.validate import REASONS, BadRecordError, check_record, within
 from agrislam.records import (
     Anchor,
     ContinuousMeasurement,
@@ -44,10 +48,6 @@ from agrislam.records import (
     TruthObject,
     TruthPose,
 )
-from agrislam.sources.clock import Rejected, RobotClocks
-from agrislam.sources.log_report import LogError, ReadReport
-from agrislam.sources.odometry_gaps import OdometryGaps
-from agrislam.sources.validate import REASONS, BadRecordError, check_record, within
 
 __all__ = ["REASONS", "LogError", "LogReader", "ReadReport", "read_log"]
 

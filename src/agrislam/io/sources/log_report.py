@@ -8,8 +8,8 @@ from collections import Counter
 from dataclasses import dataclass, field
 from typing import Any
 
-from agrislam.sources.base import SourceError
-from agrislam.sources.validate import REASONS
+from agrislam.io.sources.base import SourceError
+from agrislam.io.sources.validate import REASONS
 
 MAX_MESSAGE = 200  # characters of a bad line's message that are kept (a line may be huge)
 

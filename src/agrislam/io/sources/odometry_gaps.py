@@ -24,9 +24,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from agrislam.geometry.se2 import compose_increments, wrap_angle
+from agrislam.io.sources.sync import interpolate_increment
+from agrislam.io.sources.validate import BadRecordError
 from agrislam.records import Odometry
-from agrislam.sources.sync import interpolate_increment
-from agrislam.sources.validate import BadRecordError
 
 BRIDGE_SIGMA = 0.5  # sigma of a bridged motion, as a fraction of its size
 MIN_BRIDGE_SIGMA = (0.01, 0.01, 0.01)  # m, m, rad: the least a bridged motion is widened by

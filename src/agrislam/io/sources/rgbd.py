@@ -15,14 +15,14 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from agrislam.perception.camera import PinholeCamera
-from agrislam.perception.config import PerceptionConfig
-from agrislam.perception.detector import ImageDetection, RgbdDetector
+from agrislam.io.perception.camera import PinholeCamera
+from agrislam.io.perception.config import PerceptionConfig
+from agrislam.io.perception.detector import ImageDetection, RgbdDetector
+from agrislam.io.ros.messages import DETECTION2D_ARRAY, image_array
+from agrislam.io.sources.bag_config import BagSourceConfig
+from agrislam.io.sources.bag_report import BagReport, SkipError
+from agrislam.io.sources.hypotheses import hypotheses, parse_hypotheses
 from agrislam.records import Detection
-from agrislam.ros.messages import DETECTION2D_ARRAY, image_array
-from agrislam.sources.bag_config import BagSourceConfig
-from agrislam.sources.bag_report import BagReport, SkipError
-from agrislam.sources.hypotheses import hypotheses, parse_hypotheses
 
 IMAGES_KEPT = 64  # per image topic: the latest images a frame can be paired with
 

@@ -49,27 +49,17 @@ from rosbags.interfaces import MessageDefinitionFormat
 
 from agrislam.config import AgrislamConfig, FieldSchema
 from agrislam.geometry.se2 import between
-from agrislam.perception.camera import (
+from agrislam.io.perception.camera import (
     rigid_transform,
     rotation_from_quaternion,
 )
-from agrislam.perception.config import PerceptionConfig
-from agrislam.perception.label_map import LabelMap, UnknownLabelError
-from agrislam.records import (
-    Detection,
-    Detections,
-    GnssFix,
-    Meta,
-    Odometry,
-    Record,
-    TruthObject,
-    TruthPose,
-)
-from agrislam.ros.conventions import (
+from agrislam.io.perception.config import PerceptionConfig
+from agrislam.io.perception.label_map import LabelMap, UnknownLabelError
+from agrislam.io.ros.conventions import (
     POSE_COV_INDEX,
     UNKNOWN_COVARIANCE,
 )
-from agrislam.ros.messages import (
+from agrislam.io.ros.messages import (
     CAMERA_INFO,
     DETECTION2D_ARRAY,
     DETECTION3D_ARRAY,
@@ -81,16 +71,26 @@ from agrislam.ros.messages import (
     stamp_to_seconds,
     typestore,
 )
-from agrislam.ros.navsat import NAVSAT_FIX, gnss_record
-from agrislam.sources.bag_config import BagSourceConfig
-from agrislam.sources.bag_open import check_bag, opened_bag
-from agrislam.sources.bag_report import BagReport, SkipError
-from agrislam.sources.clock import Rejected, RobotClocks
-from agrislam.sources.hypotheses import hypotheses, parse_hypotheses
-from agrislam.sources.jsonl import LogError, read_log
-from agrislam.sources.rgbd import ProjectedFrame, RgbdFrames
-from agrislam.sources.transforms import TransformTree, planar, pose_matrix
-from agrislam.sources.validate import BadRecordError, check_record
+from agrislam.io.ros.navsat import NAVSAT_FIX, gnss_record
+from agrislam.io.sources.bag_config import BagSourceConfig
+from agrislam.io.sources.bag_open import check_bag, opened_bag
+from agrislam.io.sources.bag_report import BagReport, SkipError
+from agrislam.io.sources.clock import Rejected, RobotClocks
+from agrislam.io.sources.hypotheses import hypotheses, parse_hypotheses
+from agrislam.io.sources.jsonl import LogError, read_log
+from agrislam.io.sources.rgbd import ProjectedFrame, RgbdFrames
+from agrislam.io.sources.transforms import TransformTree, planar, pose_matrix
+from agrislam.io.sources.validate import BadRecordError, check_record
+from agrislam.records import (
+    Detection,
+    Detections,
+    GnssFix,
+    Meta,
+    Odometry,
+    Record,
+    TruthObject,
+    TruthPose,
+)
 
 _UNTIMED = 3
 _KIND_RANK = {

@@ -8,7 +8,7 @@ from typing import Any
 
 import numpy as np
 
-from agrislam.perception.camera import rigid_transform, rotation_from_quaternion
+from agrislam.io.perception.camera import rigid_transform, rotation_from_quaternion
 
 
 def pose_matrix(pose: Any) -> np.ndarray:

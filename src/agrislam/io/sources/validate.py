@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from agrislam.limits import InputLimits
+from agrislam.config.limits import InputLimits
 from agrislam.records import (
     FIX_TYPES,
     Anchor,
