@@ -22,12 +22,46 @@ def test_version_and_help():
         assert command in result.output
 
 
-def test_config_defaults_round_trip(tmp_path):
+def test_config_defaults_show_the_users_fields_and_all_of_them_round_trip(tmp_path):
     result = runner.invoke(app, ["config", "--defaults"])
     assert result.exit_code == 0
     data = json.loads(result.output)
-    assert AgrislamConfig.model_validate(data) == AgrislamConfig()
+    assert "advanced" not in data
     assert data["association"]["w_sem"] == 0.3  # the paper's value
+    users = [(s, k) for s, v in data.items() if isinstance(v, dict) for k in v]
+    assert 15 <= len(users) <= 25
+    assert AgrislamConfig.model_validate(data) == AgrislamConfig()
+    every = json.loads(runner.invoke(app, ["config", "--defaults", "--all"]).output)
+    assert every["advanced"]["association"]["landmark_gate_chi2"] == 9.21
+    assert AgrislamConfig.model_validate(every) == AgrislamConfig()
+
+
+def test_a_config_of_the_older_layout_reads_with_warnings_naming_the_new_place(tmp_path):
+    old = tmp_path / "old.yaml"
+    old.write_text(
+        "association:\n  w_sem: 0.5\n  gate_chi2: 4.0\n  index_margin: 0.5\n"
+        "slam:\n  window: 0\nmaintenance:\n  prune: false\n"
+    )
+    with pytest.warns(FutureWarning) as caught:
+        cfg = AgrislamConfig.load(old)
+    said = " ".join(str(w.message) for w in caught)
+    assert "association.gate_chi2 is now advanced.association.gate_chi2" in said
+    assert "slam.window is now advanced.slam.window" in said
+    assert "maintenance is now advanced.maintenance" in said
+    assert "association.index_margin is ignored" in said
+    assert cfg.association.w_sem == 0.5 and cfg.advanced.association.gate_chi2 == 4.0
+    assert cfg.advanced.slam.window == 0 and cfg.advanced.maintenance.prune is False
+    new = AgrislamConfig.model_validate(
+        {
+            "association": {"w_sem": 0.5},
+            "advanced": {
+                "association": {"gate_chi2": 4.0},
+                "slam": {"window": 0},
+                "maintenance": {"prune": False},
+            },
+        }
+    )
+    assert cfg == new
 
 
 def test_a_bad_config_value_names_the_field(tmp_path):

@@ -6,11 +6,12 @@ import itertools
 import numpy as np
 import pytest
 
-from agrislam.association.gnn import D_INTER_SAMPLE
 from agrislam.config import AgrislamConfig
+from agrislam.config.effective import DEFAULT_D_INTER
+from agrislam.estimation.point_spacing import D_INTER_SAMPLE
 from agrislam.io.sources import open_source
 from agrislam.io.sources.simulated import simulation_uri
-from agrislam.maintenance import AfterFold
+from agrislam.maintenance.pruning import AfterFold
 from agrislam.records import (
     Detection,
     Detections,
@@ -131,7 +132,7 @@ def test_without_a_field_prior_two_landmarks_nearer_than_d_inter_seen_together_s
     world = WorldModel(config())
     world.process(Meta(robots={"r1": RobotStart(np.array([0.0, 0.5, 0.0]), np.full(3, 1e-3))}))
     drive(world, "r1", straight(0.0, 0.8, 0.5, 6), plants=pair)
-    assert world.association.d_inter > 0.1
+    assert world.d_inter > 0.1
     snap = world.snapshot()
     assert len(snap.objects) == 2 and np.all(snap.objects.n_meas == 6)
     d = np.linalg.norm(snap.objects.xy[:, None] - pair[None], axis=2)
@@ -194,10 +195,10 @@ def test_near_neighbours_stay_apart_while_the_robot_is_lost_in_the_map(chain):
     world = WorldModel(
         config(association={"innovation_gate": True, "gate_chi2": 5.99, "gate_sigma_max": 3})
     )
+    world.process(Meta(robots={"r1": RobotStart(np.zeros(3), np.array([5.0, 5.0, 0.05]))}))
     if not chain:  # as if every plant had been last seen by another robot
         last_seen = world.objects.last_seen
         world.objects.last_seen = lambda ids, robot: last_seen(ids, robot + 1)
-    world.process(Meta(robots={"r1": RobotStart(np.zeros(3), np.array([5.0, 5.0, 0.05]))}))
     poses = straight(0.0, 6.0, 0.0, 25)
 
     def narrow(pose, plants, colours=COLOURS):
@@ -245,7 +246,7 @@ def test_one_config_object_serves_two_surveys_and_is_never_written():
     before = cfg.model_dump()
     first, second = survey(0.4), survey(0.4)
     assert cfg.model_dump() == before  # the field prior's d_inter stays on the world
-    assert first.association.d_inter == second.association.d_inter == 0.2
+    assert first.d_inter == second.d_inter == 0.2
     a, b = first.snapshot(), second.snapshot()
     np.testing.assert_array_equal(a.objects.ids, b.objects.ids)
     np.testing.assert_array_equal(a.objects.xy, b.objects.xy)
@@ -253,7 +254,7 @@ def test_one_config_object_serves_two_surveys_and_is_never_written():
     for name in a.objects.discrete:
         np.testing.assert_array_equal(a.objects.discrete[name], b.objects.discrete[name])
     # a third survey with another field prior gets its own
-    assert survey(0.6).association.d_inter == pytest.approx(0.3)
+    assert survey(0.6).d_inter == pytest.approx(0.3)
 
 
 def test_a_robot_of_the_meta_that_never_drives_is_reported_not_a_crash():
@@ -281,7 +282,7 @@ def test_a_field_prior_without_a_row_spacing_leaves_the_rows_alone(spacing):
     world.process(Meta(field=FieldPrior(row_spacing=spacing, min_plant_distance=-0.4)))
     drive(world, "r1", straight(0.0, 1.0, 0.5, 8))
     world.finish()
-    assert world.association.d_inter == AgrislamConfig().association.d_inter
+    assert world.d_inter == DEFAULT_D_INTER
     assert any("row_spacing" in issue for issue in world.issues)
     assert len(world.snapshot().objects) == len(PLANTS)
 
@@ -291,14 +292,14 @@ def test_a_survey_without_a_field_prior_is_mapped_as_point_landmarks():
     gate is the whole innovation at 99 %, d_inter comes from the detection noise (three
     sigmas of its sharpest axis) and rows are off, each unless the config sets it."""
     world = WorldModel(AgrislamConfig())
-    assert world.rows is not None  # not decided before the survey says what it is
+    assert world.d_inter is None  # not known before the first detections
     world.process(Detections(0.0, "r1", seen_from(np.zeros(3), PLANTS)))
-    cfg = world.association
+    cfg = world.settings.association
     assert cfg.innovation_gate and cfg.gate_chi2 == pytest.approx(9.21)
-    assert cfg.d_inter == pytest.approx(3.0 * np.sqrt(0.002))
-    assert world.rows is None
-    assert not world.existence.enabled  # no confirmation of young objects
-    assert world.config.association.d_inter == 0.2  # the config itself is not written
+    assert world.d_inter == pytest.approx(3.0 * np.sqrt(0.002))
+    assert world.stages.estimators.rows is None
+    assert not world.stages.maintainer.existence.enabled  # no confirmation of young objects
+    assert world.config.association.d_inter is None  # the config itself is not written
 
 
 def test_without_a_field_prior_d_inter_follows_the_first_detections_not_the_first_frame():
@@ -312,28 +313,32 @@ def test_without_a_field_prior_d_inter_follows_the_first_detections_not_the_firs
         return Detections(t, "r1", tuple(Detection(xy=p, cov=cov) for p in xy))
 
     world.process(frame(0.0, sharp))
-    assert world.association.d_inter == pytest.approx(0.03)
+    assert world.d_inter == pytest.approx(0.03)
     for k in range(1, D_INTER_SAMPLE // 50 + 3):
         world.process(frame(float(k), blurred))
-    assert world.association.d_inter == pytest.approx(0.12)  # 450 of 500 blurred
+    assert world.d_inter == pytest.approx(0.12)  # 450 of 500 blurred
 
 
 def test_a_field_prior_keeps_the_papers_defaults_and_the_config_wins():
     world = WorldModel(AgrislamConfig())
     world.process(Meta(field=FieldPrior(1.0, 0.3)))
     world.process(Detections(0.0, "r1", seen_from(np.zeros(3), PLANTS)))
-    assert not world.association.innovation_gate and world.association.d_inter == 0.15
-    assert world.rows is not None
-    assert world.existence.enabled
+    assert not world.settings.association.innovation_gate and world.d_inter == 0.15
+    assert world.stages.estimators.rows is not None
+    assert world.stages.maintainer.existence.enabled
     chosen = WorldModel(
         AgrislamConfig.model_validate(
-            {"association": {"gate_chi2": 4.0, "d_inter": 0.1}, "rows": {"enabled": True}}
+            {
+                "association": {"d_inter": 0.1},
+                "rows": {"enabled": True},
+                "advanced": {"association": {"gate_chi2": 4.0}},
+            }
         )
     )
     chosen.process(Detections(0.0, "r1", seen_from(np.zeros(3), PLANTS)))
-    cfg = chosen.association
-    assert cfg.innovation_gate and cfg.gate_chi2 == 4.0 and cfg.d_inter == 0.1
-    assert chosen.rows is not None
+    cfg = chosen.settings.association
+    assert cfg.innovation_gate and cfg.gate_chi2 == 4.0 and chosen.d_inter == 0.1
+    assert chosen.stages.estimators.rows is not None
 
 
 def test_after_fold_holds_the_touched_objects_for_the_next_step():
@@ -346,7 +351,10 @@ def test_after_fold_holds_the_touched_objects_for_the_next_step():
 def test_a_folding_step_leaves_the_rows_and_merges_of_its_objects_to_the_next_step():
     """A fold retires its window's objects; a row constraint or a merge on one computes its
     deferred covariance (issue 14): not in the step that folded, but the next one."""
-    world = WorldModel(AgrislamConfig.model_validate({"slam": {"window": 20}}))
+    world = WorldModel(AgrislamConfig.model_validate({"advanced": {"slam": {"window": 20}}}))
+    source = open_source(simulation_uri(plants=400, seed=2), world.config)
+    records = source.records()
+    world.process(next(records))  # the meta: the survey's stages are built for it
     settled_in, folds, step = [], [], [0]
     retired = world.backend._retired_objects
     settle, update = retired._settle_jobs, world.backend.update
@@ -364,9 +372,8 @@ def test_a_folding_step_leaves_the_rows_and_merges_of_its_objects_to_the_next_st
         return folded
 
     retired._settle_jobs, world.backend.update = spy_settle, spy_update
-    source = open_source(simulation_uri(plants=400, seed=2), world.config)
     rows_made = []
-    for record in itertools.islice(source.records(), 3000):
+    for record in itertools.islice(records, 2999):
         if world.process(record) is not None:
             step[0] += 1
             rows_made.append(int((world.backend.rows_of(world.active_ids()) >= 0).sum()))

@@ -48,25 +48,32 @@ def test_without_an_anchor_the_first_good_fix_is_one() -> None:
     assert result.gnss["used"] > 0
 
 
+def rows(world: WorldModel):
+    """The world's row tracker (None: no rows in this survey)."""
+    return world.stages.estimators.rows
+
+
 def test_a_survey_with_fixes_maps_without_the_row_prior_unless_configured() -> None:
     # issue 13: on a 450 m row a row line fitted 0.1 deg off lies 0.8 m from the fixes at
     # its end; the graph twisted the robot's heading by degrees to reconcile them
     records = survey(True)
     by_default = WorldModel()
     run_survey(records, by_default)
-    assert by_default.rows is None
+    assert rows(by_default) is None
     configured = WorldModel(AgrislamConfig.model_validate({"rows": {"enabled": True}}))
     run_survey(records, configured)
-    assert configured.rows is not None and configured.rows.angle is not None
+    assert rows(configured) is not None and rows(configured).angle is not None
     without_fixes = WorldModel()
     run_survey(survey(False), without_fixes)
-    assert without_fixes.rows is not None and without_fixes.rows.angle is not None
-    no_fix_used = WorldModel(AgrislamConfig.model_validate({"gnss": {"enabled": False}}))
+    assert rows(without_fixes) is not None and rows(without_fixes).angle is not None
+    no_fix_used = WorldModel(
+        AgrislamConfig.model_validate({"advanced": {"gnss": {"enabled": False}}})
+    )
     run_survey(records, no_fix_used)
-    assert no_fix_used.rows is not None
+    assert rows(no_fix_used) is not None
     # rows fitted before the first fix are in the graph (and its folded history): they stay
     late = [r for r in records if not (isinstance(r, GnssFix) and r.t < 20.0)]
     fixed_late = WorldModel()
     result = run_survey(late, fixed_late)
     assert result.gnss["used"] > 0
-    assert fixed_late.rows is not None and fixed_late.rows.angle is not None
+    assert rows(fixed_late) is not None and rows(fixed_late).angle is not None

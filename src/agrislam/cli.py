@@ -401,7 +401,7 @@ def _problem(error: Any) -> str:
     """One pydantic error as 'key.path: what (got value)'."""
     key = ".".join(str(p) for p in error["loc"]) or "(top level)"
     if error["type"] == "extra_forbidden":
-        return f"{key}: unknown key (every key: agrislam config --defaults)"
+        return f"{key}: unknown key (every key: agrislam config --defaults --all)"
     what = str(error["msg"]).removeprefix("Value error, ")
     value = error.get("input")
     got = "" if isinstance(value, (dict, list)) else f" (got {value!r})"
@@ -448,15 +448,20 @@ def _fail(message: str, code: int) -> NoReturn:
 @app.command("config")
 def config_cmd(
     defaults: Annotated[
-        bool, typer.Option("--defaults", help="Print every default value.")
+        bool, typer.Option("--defaults", help="Show the defaults (no file needed).")
+    ] = False,
+    every: Annotated[
+        bool, typer.Option("--all", help="Show the `advanced` section too: every field.")
     ] = False,
     file: Annotated[Path | None, typer.Argument(help="A config file to check and show.")] = None,
 ) -> None:
-    """Show a configuration with every value filled in (`--defaults`: the defaults), as JSON."""
+    """Show a configuration with its values filled in, as JSON: the fields a user sets
+    (`--all`: every field, the `advanced` ones too); `--defaults`: the defaults."""
     with _user_errors():
         data = load_mapping(file) if file and not defaults else {}
         cfg = _validated(AgrislamConfig, data, file)
-    console.print_json(json.dumps(cfg.model_dump(mode="json", by_alias=True)))
+    hidden = None if every else {"advanced"}
+    console.print_json(json.dumps(cfg.model_dump(mode="json", by_alias=True, exclude=hidden)))
 
 
 # ----------------------------------------------------------------------- helpers

@@ -4,19 +4,19 @@ import numpy as np
 import pytest
 
 from agrislam.association.gnn import (
-    PlacedDetections,
     assign,
     association_matrix,
     distance_term,
-    informative_measurements,
     innovation_covariance,
     max_association_distance,
     rivals_on_one_metric,
     semantic_term,
 )
 from agrislam.config import AssociationConfig, FieldSchema, SemanticsConfig
+from agrislam.geometry.placed import PlacedDetections
 from agrislam.records import ContinuousMeasurement, DiscreteMeasurement
 from agrislam.semantics.beliefs import BeliefTable
+from agrislam.semantics.measurements import informative_measurements
 
 
 @pytest.fixture
@@ -89,7 +89,7 @@ def test_a_far_detection_starts_a_new_object(table):
     placed = PlacedDetections(np.array([[0.0, 0.0], [5.0, 0.0]]), np.zeros((2, 2, 2)), [{}, {}])
     cov = np.array([[[0.01, 0.0], [0.0, 0.01]]])
     matrix = association_matrix(
-        placed, ids, np.array([[0.05, 0.0]]), cov, table, AssociationConfig(), 0.0
+        placed, ids, np.array([[0.05, 0.0]]), cov, table, AssociationConfig(), 0.2, 0.0
     )
     assert assign(matrix).tolist() == [0, -1]
 
@@ -110,7 +110,7 @@ def test_semantics_can_tip_the_assignment(table):
     )
     xy = np.array([[0.2, 0.0], [-0.2, 0.0]])
     cov = np.tile(np.eye(2) * 0.01, (2, 1, 1))
-    matrix = association_matrix(placed, ids, xy, cov, table, AssociationConfig(), 0.0)
+    matrix = association_matrix(placed, ids, xy, cov, table, AssociationConfig(), 0.2, 0.0)
     assert matrix[0, 1] < matrix[0, 0]
     assert assign(matrix).tolist() == [1]
 

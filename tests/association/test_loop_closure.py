@@ -10,6 +10,7 @@ import pytest
 
 from agrislam.association.loop_closure import CLOSED, MIN_FRAMES, RECENT_S, LoopCloser
 from agrislam.config import SemanticsConfig
+from agrislam.estimation.point_spacing import PointSpacing
 from agrislam.geometry import se2
 from agrislam.mapping.births import Births
 from agrislam.mapping.objects import ObjectTable
@@ -61,8 +62,7 @@ def closer_over(
     for _ in range(MIN_FRAMES):
         cov = np.repeat(DETECTION_VARIANCE * np.eye(2)[None], len(ids), axis=0)
         objects.seen(ids, ROBOT, np.zeros((3, 3, 3)), np.zeros((len(ids), 2)), cov)
-    closer = LoopCloser(births, Counter())
-    closer.gate_chi2, closer.reach = 9.21, 0.4
+    closer = LoopCloser(births, Counter(), 9.21, PointSpacing(0.2))  # reach 2 d_inter = 0.4
     xy = np.r_[old_xy, new_xy]
     return closer, closer.pairs(ROBOT, 450.0, objects, Positions(xy), 1.0)
 

@@ -5,7 +5,6 @@ not mapped; a young object whose every detection lay on such a ray is pruned at 
 
 import numpy as np
 
-from agrislam.association.gnn import PlacedDetections
 from agrislam.association.range_outliers import (
     JUDGED_AFTER_S,
     LANDMARK_AFTER_S,
@@ -16,6 +15,7 @@ from agrislam.association.range_outliers import (
     RangeOutliers,
 )
 from agrislam.config import AgrislamConfig, SemanticsConfig
+from agrislam.geometry.placed import PlacedDetections
 from agrislam.mapping.objects import ObjectTable
 from agrislam.mapping.spatial_index import SpatialIndex
 from agrislam.records import Detection, Detections, Meta, RobotStart
@@ -41,8 +41,7 @@ def world(enabled: bool = True):
         objects.beliefs.update(ids[:1], [{}], float(k))
     index = SpatialIndex()
     index.move(ids, XY)
-    outliers = RangeOutliers()
-    outliers.enabled = enabled
+    outliers = RangeOutliers(enabled)
     return outliers, objects, index
 
 
@@ -183,7 +182,7 @@ def test_a_world_reports_a_range_outlier_as_its_landmark_and_does_not_map_it():
         assert len(world_model.process(frame(t, rng)).new_ids) == 1  # not trusted yet
         world_model.process(frame(t + JUDGED_AFTER_S + 1.0, 4.0))  # the landmark again
         t += JUDGED_AFTER_S + 2.0
-    assert world_model.outliers.trusted
+    assert world_model.stages.associator.outliers.trusted
     before = world_model.backend.object_positions(np.array([landmark]))[0].copy()
     n_meas, n_objects = int(world_model.objects.n_meas[landmark]), len(world_model.objects)
     report = world_model.process(frame(t, 2.0))

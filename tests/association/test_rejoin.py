@@ -5,9 +5,9 @@ from collections import Counter
 
 import numpy as np
 
-from agrislam.association.gnn import PlacedDetections
 from agrislam.association.rejoin import LOST_WINDOW_S, REJOINED, Rejoiner
 from agrislam.geometry import se2
+from agrislam.geometry.placed import PlacedDetections
 from agrislam.mapping.births import Births
 from agrislam.mapping.spatial_index import SpatialIndex
 

@@ -242,10 +242,10 @@ def test_empty_schema_means_no_attributes():
 def test_a_renamed_association_key_is_still_read_with_a_warning():
     with pytest.warns(FutureWarning, match="detection_covariance is now .*innovation_gate"):
         cfg = AgrislamConfig.model_validate({"association": {"detection_covariance": True}})
-    assert cfg.association.innovation_gate is True
+    assert cfg.advanced.association.innovation_gate is True
 
 
 def test_a_removed_association_key_is_ignored_with_a_warning():
     with pytest.warns(FutureWarning, match="weak_tentative is ignored: .*maintenance.existence"):
         cfg = AgrislamConfig.model_validate({"association": {"weak_tentative": False}})
-    assert cfg.maintenance.existence is True
+    assert cfg.advanced.maintenance.existence is None  # left to the survey

@@ -17,10 +17,10 @@ from agrislam.estimation.noise_calibration import (
     NoiseCalibration,
     NoiseScale,
     nearest_other,
-    odometry_parts,
     pair_components,
 )
 from agrislam.geometry import se2
+from agrislam.geometry.drift import odometry_parts
 from agrislam.io.sources.jsonl import read_log
 from agrislam.run.pipeline import run_survey
 from agrislam.sim.arena import ArenaSimulator

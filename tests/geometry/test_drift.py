@@ -1,13 +1,13 @@
 """The dead-reckoning drift since an object was last seen (geometry/drift.py) and the
-odometry chain that accumulates it (frontend/odometry.py)."""
+odometry chain that accumulates it (geometry/odometry.py)."""
 
 import numpy as np
 import pytest
 
 from agrislam.estimation.noise_calibration import NoiseScale
-from agrislam.frontend.odometry import OdometryChain
 from agrislam.geometry import se2
 from agrislam.geometry.drift import adjoint, since_seen
+from agrislam.geometry.odometry import OdometryChain
 
 Q = np.diag([0.02**2, 0.01**2, 0.01**2])  # per step: x, y, heading
 STEP = np.array([0.5, 0.0, 0.04])  # a gentle left curve

@@ -6,11 +6,11 @@ cluttered one must stay clean, a clean one must confirm its plants early."""
 import numpy as np
 import pytest
 
-from agrislam import maintenance
 from agrislam.config import AgrislamConfig, MaintenanceConfig, SensorDefaults
-from agrislam.geometry.noise import SensorModel
+from agrislam.frontend.sensor_model import SensorModel
 from agrislam.geometry.view_area import ViewArea, in_robot_frames, log_odds_absent
-from agrislam.maintenance import Existence
+from agrislam.maintenance import existence as existence_test
+from agrislam.maintenance.existence import Existence
 from agrislam.mapping.objects import ObjectTable
 from agrislam.mapping.spatial_index import SpatialIndex
 from agrislam.records import Detection
@@ -23,7 +23,7 @@ from agrislam.sim.simulator import Simulator
 from agrislam.world import WorldModel
 
 PAPER = {
-    "maintenance": {"existence": False},
+    "advanced": {"maintenance": {"existence": False}},
 }
 
 
@@ -85,7 +85,7 @@ def test_a_tentative_objects_factor_gets_d_inter_of_isotropic_noise():
 
 
 def _table(n):
-    objects = ObjectTable(BeliefTable(None, AgrislamConfig().semantics))
+    objects = ObjectTable(BeliefTable(None, AgrislamConfig().advanced.semantics))
     objects.add(n, 0.0, tentative=True)
     return objects
 
@@ -135,7 +135,7 @@ def test_only_objects_still_tentative_face_the_end_of_survey_test():
 def test_the_rates_are_learned_from_the_newest_objects(monkeypatch):
     """An EM over every object of a 100,000-plant field, every RELEARN_FRAMES frames, cost
     1 ms of the p95 step (issue 14): the rates are the LEARN_RECENT newest objects'."""
-    monkeypatch.setattr(maintenance, "LEARN_RECENT", 40)
+    monkeypatch.setattr(existence_test, "LEARN_RECENT", 40)
     objects = _table(100)
     objects.views[:] = 10
     _seen(objects, np.repeat(np.arange(60), 5))  # the older: 5 of 10 frames

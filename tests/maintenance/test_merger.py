@@ -7,7 +7,7 @@ import itertools
 import numpy as np
 
 from agrislam.config import SemanticsConfig
-from agrislam.maintenance import CROWD_MIN_FRAMES, TOGETHER_SHARE, Merger
+from agrislam.maintenance.merger import CROWD_MIN_FRAMES, TOGETHER_SHARE, Merger
 from agrislam.mapping.objects import ObjectTable
 from agrislam.mapping.spatial_index import SpatialIndex
 from agrislam.semantics.beliefs import BeliefTable

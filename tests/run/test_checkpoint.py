@@ -23,6 +23,7 @@ from agrislam.io.sinks.sqlite import load_map, read_checkpoint
 from agrislam.io.sources import open_source
 from agrislam.io.sources.sync import synchronise
 from agrislam.records import TruthObject, TruthPose
+from agrislam.run import checkpoint as checkpoint_module
 from agrislam.run.checkpoint import (
     Checkpoints,
     InputFingerprint,
@@ -41,8 +42,15 @@ EVERY = 20  # frames between checkpoints (the 40-plant survey has 178 frames)
 
 
 def config(**more: object) -> AgrislamConfig:
-    every = {"every_frames": EVERY, "frames_per_mb": 0.0}
-    return AgrislamConfig.model_validate({"checkpoint": every, **more})
+    return AgrislamConfig.model_validate({"checkpoint": {"every_frames": EVERY}, **more})
+
+
+@pytest.fixture(scope="module", autouse=True)
+def every_frames_apart():
+    """Checkpoints EVERY frames apart, however large the state they save."""
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(checkpoint_module, "FRAMES_PER_MB", 0.0)
+        yield
 
 
 @pytest.fixture(scope="module")
@@ -116,8 +124,9 @@ def test_a_run_killed_with_sigkill_leaves_a_readable_checkpoint_and_resumes_to_t
         from agrislam.run.pipeline import run_survey
         from agrislam.io.sources import open_source
         from agrislam.world import WorldModel
-        every = {{"every_frames": {EVERY}, "frames_per_mb": 0.0}}
-        cfg = AgrislamConfig.model_validate({{"checkpoint": every}})
+        import agrislam.run.checkpoint
+        agrislam.run.checkpoint.FRAMES_PER_MB = 0.0
+        cfg = AgrislamConfig.model_validate({{"checkpoint": {{"every_frames": {EVERY}}}}})
         log, out = {str(log)!r}, {str(out)!r}
         checkpoints = Checkpoints(
             __import__("pathlib").Path(out) / "map.sqlite", InputFingerprint(log),
@@ -225,8 +234,9 @@ def test_the_cli_takes_resume_but_not_with_force(log, tmp_path):
     assert result.exit_code == 2 and "finished run, with no checkpoint" in result.output
 
 
-def test_checkpoints_grow_apart_with_the_state_they_save(tmp_path):
-    every = CheckpointConfig(every_frames=10, frames_per_mb=1000.0)
+def test_checkpoints_grow_apart_with_the_state_they_save(tmp_path, monkeypatch):
+    monkeypatch.setattr(checkpoint_module, "FRAMES_PER_MB", 1000.0)
+    every = CheckpointConfig(every_frames=10)
     checkpoints = Checkpoints(tmp_path / "map.sqlite", InputFingerprint("sim:"), "", every)
     assert not checkpoints.due(9) and checkpoints.due(10)
     checkpoints._after(10, b"x" * 5_000)  # 5 kB: 5 frames, less than every_frames

@@ -235,8 +235,14 @@ def test_a_released_world_lets_its_state_go_before_the_outputs(tmp_path, monkeyp
 
     kept = run_survey(open_source(SMALL), WorldModel(), tmp_path / "kept")
     world = WorldModel()
-    parts = [weakref.ref(world.backend), weakref.ref(world.objects), weakref.ref(world.index)]
-    alive_at_outputs = []
+    parts, alive_at_outputs = [], []
+    finish = world.finish
+
+    def finish_and_watch():  # the survey's stages, as they end it
+        parts.extend(weakref.ref(p) for p in (world.stages, world.backend, world.objects))
+        return finish()
+
+    monkeypatch.setattr(world, "finish", finish_and_watch)
 
     def write_outputs(*args, **kwargs):
         alive_at_outputs.extend(part() is not None for part in parts)
@@ -259,5 +265,5 @@ def test_a_released_world_lets_its_state_go_before_the_outputs(tmp_path, monkeyp
         assert (tmp_path / "released" / name).read_text() == (tmp_path / "kept" / name).read_text()
     with pytest.raises(RuntimeError, match="was released once the run"):
         world.snapshot()
-    with pytest.raises(RuntimeError, match="'objects' was released"):
+    with pytest.raises(RuntimeError, match="'stages' was released"):
         len(world.objects)

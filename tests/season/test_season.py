@@ -182,7 +182,7 @@ def test_survey_start_is_written_and_read_as_utc():
 
 
 def test_config_has_a_season_section():
-    assert AgrislamConfig().season.max_ambiguity < 1.0
+    assert AgrislamConfig().advanced.season.max_ambiguity < 1.0
 
 
 # ------------------------------------------------------------------ the prior in the world
@@ -463,7 +463,7 @@ def test_an_emerged_weed_becomes_one_new_plant(tmp_path):
     weeds = {t for t, n in seen.items() if t and t.startswith("w") and n >= 3}
     assert sorted(owner) == sorted(weeds)  # each weed one new object, nothing else new
     assert not world.objects.tentative[new].any()
-    assert world.existence.report()["confirmed"] >= len(weeds)
+    assert world.stages.maintainer.existence.report()["confirmed"] >= len(weeds)
 
 
 # ------------------------------------------------------------------ the gate, every robot

@@ -14,66 +14,18 @@ with it.
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from agrislam.config import AssociationConfig, FieldSchema
+from agrislam.config import AssociationConfig
 from agrislam.estimation.noise_calibration import mahalanobis
+from agrislam.geometry.placed import PlacedDetections
 from agrislam.records import DiscreteMeasurement, Measurement
 from agrislam.semantics.beliefs import BeliefTable
 
 FORBIDDEN = 1e6  # cost of an assignment the paper forbids (a_mn > 1)
-# without a field prior, d_inter is three times the median sharpest sigma of the survey's first
-# detections, this many, seen from near and far (the first frame's alone: 0.08-0.23 m in the
-# arena, whose survey median is 0.15 m)
-D_INTER_SAMPLE = 500
 RIVAL_REACH = 3.0  # in d_inter: a detection's rivals, compared on one metric
-
-
-@dataclass(frozen=True, slots=True)
-class PlacedDetections:
-    """A frame's detections in the map frame (DESIGN step 3)."""
-
-    xy: np.ndarray  # (m, 2)
-    cov: np.ndarray  # (m, 2, 2)
-    measurements: Sequence[Mapping[str, Measurement]]
-    robot_xy: np.ndarray | None = None  # (m, 2) the same detections in the robot frame
-    robot_cov: np.ndarray | None = None  # (m, 2, 2)
-    pose_cov: np.ndarray | None = None  # (m, 2, 2) what the robot's pose marginal adds
-
-    def __len__(self) -> int:
-        return len(self.xy)
-
-    def subset(self, keep: np.ndarray) -> PlacedDetections:
-        """The detections where `keep` (m,) is True."""
-        rows = np.flatnonzero(keep)
-        robot_frame = (self.robot_xy, self.robot_cov, self.pose_cov)
-        return PlacedDetections(
-            self.xy[rows],
-            self.cov[rows],
-            [self.measurements[i] for i in rows.tolist()],
-            *(None if a is None else a[rows] for a in robot_frame),
-        )
-
-
-def informative_measurements(
-    schema: FieldSchema | None, measurements: Mapping[str, Measurement]
-) -> dict[str, Measurement]:
-    """The measured attributes Y of a detection: a discrete one with p < 1/n carries no
-    information (sec. 2.3) and takes no part in association either."""
-    if schema is None:
-        return {}
-    kept: dict[str, Measurement] = {}
-    for name, m in measurements.items():
-        spec = schema.attributes.get(name)
-        if spec is None:
-            continue
-        if isinstance(m, DiscreteMeasurement) and m.p < 1.0 / len(spec.values):  # type: ignore[union-attr]
-            continue
-        kept[name] = m
-    return kept
 
 
 def semantic_term(
@@ -157,9 +109,8 @@ def rivals_on_one_metric(
 ) -> np.ndarray:
     """(m, k, 2, 2) `innovation` with each detection's rivals, the candidates within
     RIVAL_REACH d_inter of it, given their mean: close neighbours are measured alike and
-    the nearest wins. Each with its own, an object whose covariance was wider took a
-    detection of its neighbour cheaply; robots back with their pose 0.2 m off matched
-    two landmarks 0.16 m apart the wrong way round for whole visits (issue 11)."""
+    the nearest wins (each with its own, a neighbour with a wider covariance takes a
+    detection cheaply; docs/decisions.md)."""
     d = np.linalg.norm(object_xy[None, :, :] - detection_xy[:, None, :], axis=2)
     rivals = d < RIVAL_REACH * d_inter
     share = rivals / np.maximum(rivals.sum(axis=1, keepdims=True), 1)
@@ -174,13 +125,14 @@ def association_matrix(
     object_cov: np.ndarray,
     beliefs: BeliefTable,
     config: AssociationConfig,
+    d_inter: float,
     t: float,
     innovation: np.ndarray | None = None,
 ) -> np.ndarray:
     """The matrix A of sec. 2.4 over the frame's detections x candidate objects; with
     `innovation` (m, k, 2, 2) the distance term compares e to it instead of K_n."""
     covariance = object_cov if innovation is None else innovation
-    distance = distance_term(detections.xy, object_xy, covariance, config.d_inter, config.gate_chi2)
+    distance = distance_term(detections.xy, object_xy, covariance, d_inter, config.gate_chi2)
     if not config.use_semantics:
         return distance
     semantic = semantic_term(beliefs, object_ids, detections.measurements, config.w_sem, t)
@@ -218,20 +170,3 @@ def max_association_distance(
     (Sec. 2.4 states the looser bound max(d_inter, sqrt(lambda)) w_sem^-|Y|.)
     """
     return max(d_inter, sigma_max) * (1.0 - w_sem) ** (-0.5 * n_measured)
-
-
-def landmark_association(
-    current: AssociationConfig, configured: AssociationConfig, sharpest: np.ndarray
-) -> AssociationConfig:
-    """`current` as a survey without a field prior is associated (`landmark_defaults`),
-    each key `configured` sets kept: gated on the whole innovation, and d_inter three times
-    the median of the detections' `sharpest` sigmas (nearer, a detection cannot tell two
-    apart)."""
-    generic = {
-        "innovation_gate": True,
-        "gate_chi2": configured.landmark_gate_chi2,
-        "gate_sigma_max": configured.landmark_sigma_max,
-        "d_inter": 3.0 * float(np.median(sharpest)),
-    }
-    chosen = configured.model_fields_set
-    return current.model_copy(update={k: v for k, v in generic.items() if k not in chosen})

@@ -1,21 +1,6 @@
-"""A robot that comes back to where it mapped long ago closes the loop (issue 11, not in
-the paper).
-
-When a robot returns after a long drive, its drift can be far past the association's
-gate (Victoria Park: tens of metres and a few tens of degrees after the first loop), and
-every object it sees then starts anew: the map holds the place twice and the loop never
-closes. association/rejoin.py takes back a frame that is off by a metre; this takes back a place.
-
-The robot's constellation is the objects started lately that it saw last, each seen in a
-few frames; the candidates are old objects not seen since the constellation began (one
-seen meanwhile stands apart from every object of the constellation). Pairs of the
-constellation with pairs of candidates as far apart each fix a rigid motion; the motions
-are voted on in bins, the best few are fitted to their matches and counted: the best,
-if it moves the constellation farther than association could, puts at least MIN_MATCHES
-of its objects on candidates (one to one, within the gate) and no distinct motion
-matches more than half as many, is taken: each matched new object merges into its old one
-(sec. 2.6.3), and the merged factors pull the drifted part of the map back.
-"""
+"""A robot that comes back to where it mapped long ago closes the loop (not in the paper):
+its newest objects, moved far past the gate by its drift, are matched as a constellation
+to old objects by a voted rigid motion; each matched new object merges into its old one."""
 
 from __future__ import annotations
 
@@ -27,6 +12,7 @@ import numpy as np
 
 from agrislam.association.gnn import gated_matches
 from agrislam.backend import GraphBackend
+from agrislam.estimation.point_spacing import PointSpacing
 from agrislam.geometry.se2 import pair_motions, rotation, turned
 from agrislam.mapping.births import Births
 from agrislam.mapping.objects import ObjectTable
@@ -56,11 +42,23 @@ class _Fit(NamedTuple):
 class LoopCloser:
     """Finds a returning robot's constellation among old objects."""
 
-    def __init__(self, births: Births, issues: Counter[str]) -> None:
+    def __init__(
+        self,
+        births: Births,
+        issues: Counter[str],
+        gate_chi2: float | None = None,
+        spacing: PointSpacing | None = None,
+    ) -> None:
         self.births, self.issues = births, issues
-        self.gate_chi2: float | None = None  # the association's gate; None: off
-        self.reach = 0.0  # m a motion must move the constellation by, at least
+        self.gate_chi2 = gate_chi2  # the association's gate; None: off
+        self.spacing = spacing  # a motion must move the constellation by 2 d_inter at least
         self._checked: dict[int, int] = {}  # robot -> newest object of its last check
+
+    @property
+    def reach(self) -> float:
+        """m a motion must move the constellation by, at least: the merger's company."""
+        d_inter = self.spacing.d_inter if self.spacing is not None else None
+        return 2.0 * d_inter if d_inter is not None else 0.0
 
     def pairs(
         self,

@@ -1,14 +1,14 @@
-"""Range outliers (issue 11, not in the paper): in a survey without a field prior, a
-detection with a gross range error of a landmark already mapped goes to that landmark
-without moving the map, and the objects that only such errors made are pruned at the end."""
+"""Range outliers (not in the paper): without a field prior, a detection with a gross range
+error of a mapped landmark goes to that landmark without moving the map, and the objects
+that only such errors made are pruned at the end of the survey."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from agrislam.association.gnn import PlacedDetections
 from agrislam.backend import GraphBackend
 from agrislam.geometry import se2
+from agrislam.geometry.placed import PlacedDetections
 from agrislam.mapping.objects import ObjectTable
 from agrislam.mapping.spatial_index import SpatialIndex
 from agrislam.snapshot import STATUS_ACTIVE
@@ -47,8 +47,8 @@ class RangeOutliers:
     had detected it) is pruned at the end of the survey. Without a field prior only
     (`enabled`): a crop camera sees plants in rows along its rays."""
 
-    def __init__(self) -> None:
-        self.enabled = False
+    def __init__(self, enabled: bool = False) -> None:
+        self.enabled = enabled
         self._explained: dict[int, int] = {}  # young object -> its detections explained
         self._reach = 0.0  # m, the farthest detection so far
         self._born: dict[int, float] = {}  # object born on a settled ray -> birth time

@@ -1,20 +1,7 @@
-"""A robot that lost its way rejoins the map (issue 11, not in the paper).
-
-A robot that sees no known object for a while drifts past its gates: its odometry's
-heading is worse than it reports, more so than the noise calibration has learnt yet
-(the arena: 0.1 rad in 30 s against a reported 0.01). Its detections then start objects of
-its own, it follows them and goes on lost, and when it meets known objects again the GNN of
-sec. 2.4 pairs them with whatever is near its wrong place.
-
-A frame with two or more detections that are new or went to objects started lately (its
-own copies, or the outliers of a survey that has seen its objects long since) is a sign.
-Pairs of such detections with pairs of settled objects around, at the same distance apart,
-each fix a correction of the robot's pose (rotation about the robot, then a shift); one that
-moves it by less than MAX_SHIFT_M and MAX_TURN_RAD, puts at least two more of the frame's
-detections on settled objects (within the association gate) than the GNN did, and has no
-distinct rival as good, is taken: those detections go to those objects, and their factors
-pull the robot back.
-"""
+"""A robot that lost its way rejoins the map (not in the paper). Pairs of the frame's new
+detections matched to pairs of settled objects as far apart fix corrections of its pose;
+one that puts at least two more detections on settled objects than the GNN did, with no
+distinct rival as good, is taken."""
 
 from __future__ import annotations
 
@@ -23,9 +10,10 @@ from typing import NamedTuple
 
 import numpy as np
 
-from agrislam.association.gnn import PlacedDetections, gated_matches
+from agrislam.association.gnn import gated_matches
 from agrislam.backend import GraphBackend
 from agrislam.estimation.noise_calibration import mahalanobis
+from agrislam.geometry.placed import PlacedDetections
 from agrislam.geometry.se2 import pair_motions, turned
 from agrislam.mapping.births import Births
 from agrislam.mapping.spatial_index import SpatialIndex
@@ -41,10 +29,16 @@ REJOINED = "frames on which a lost robot rejoined the map (association/rejoin.py
 class Rejoiner:
     """Finds the correction that puts a lost robot's frame back on settled objects."""
 
-    def __init__(self, index: SpatialIndex, births: Births, issues: Counter[str]) -> None:
+    def __init__(
+        self,
+        index: SpatialIndex,
+        births: Births,
+        issues: Counter[str],
+        gate_chi2: float | None = None,
+    ) -> None:
         self.index, self.births = index, births
         self.issues = issues  # the run's issues count the frames rejoined
-        self.gate_chi2: float | None = None  # the association's gate; None: off
+        self.gate_chi2 = gate_chi2  # the association's gate; None: off
 
     def rejoin(
         self,

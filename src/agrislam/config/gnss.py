@@ -1,4 +1,5 @@
-"""The settings of GNSS fixes as factors (issue 13; `gnss:` of the config)."""
+"""GNSS fixes as factors on the robot pose (estimation/gnss.py): the antenna a user sets,
+the weights and gates in `advanced.gnss`, and both together as the estimator takes them."""
 
 from __future__ import annotations
 
@@ -9,8 +10,16 @@ from pydantic import Field
 from agrislam.config.limits import StrictModel as _Strict
 
 
-class GnssConfig(_Strict):
-    """GNSS fixes as factors on the robot pose (estimation/gnss.py)."""
+class GnssSection(_Strict):
+    """Where the GNSS antenna sits on the robot."""
+
+    antenna: tuple[float, float, float] = Field(
+        (0.0, 0.0, 0.0), description="m, antenna in the robot frame when a fix does not say"
+    )
+
+
+class AdvancedGnss(_Strict):
+    """How fixes are weighted and gated."""
 
     enabled: bool = True
     # sigma floor per fix type (m, horizontal): a receiver's covariance is trusted no lower
@@ -45,6 +54,7 @@ class GnssConfig(_Strict):
     gate_reacquire: int = Field(
         10, ge=0, description="after this many fixes in a row beyond the gate, take the next"
     )
-    antenna: tuple[float, float, float] = Field(
-        (0.0, 0.0, 0.0), description="m, antenna in the robot frame when a fix does not say"
-    )
+
+
+class GnssConfig(GnssSection, AdvancedGnss):
+    """Both parts, as the GNSS estimator is configured."""

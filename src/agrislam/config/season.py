@@ -1,4 +1,4 @@
-"""The settings of a survey that continues a saved map (issue 15; `season:` of the config)."""
+"""The settings of a survey that continues a saved map (`advanced.season`)."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ from agrislam.config.limits import StrictModel as _Strict
 
 
 class SeasonConfig(_Strict):
-    """A survey that continues a saved map (issue 15): re-localisation in it and the
+    """A survey that continues a saved map: re-localisation in it and the
     changes found against it."""
 
     cluster_radius: float = Field(

@@ -1,12 +1,6 @@
-"""Self-calibration of the detector's depth bias (sec. 2.3).
-
-Averaging the depth pixels of a plant's mask sees its near side, so every detection
-lies a little closer to the robot than the plant's centre. The paper hides this under a
-large depth variance and notes that it "might have to be established and corrected".
-Once a plant has been seen from several poses its position is fixed by the bearings
-(the line intersection of sec. 2.6.1), so the along-ray residuals of new detections of
-it measure the bias; the estimate is fed back into the placement of every detection.
-"""
+"""The detector's depth bias (sec. 2.3), learned: a mask's depth pixels see a plant's near
+side, so detections lie short of its centre; once bearings from several poses fix a plant,
+the along-ray residuals of new detections of it measure the bias, fed back into placement."""
 
 from __future__ import annotations
 

@@ -1,21 +1,7 @@
-"""GNSS fixes as factors on the robot pose (issue 13): the antenna at lever arm `l` in the
-robot frame sits at t + R(theta) l in the map frame, which the fix measures.
-
-A fix is projected into the map frame of the survey's anchor (geometry/geodesy.py), tied
-to the robot's next pose node with the odometry between the fix and that node folded into
-the lever arm, weighted by its covariance with a floor per fix type, gated on its
-Mahalanobis distance from the predicted antenna, and wrapped in a robust kernel as wide as
-the fix's innovation. RTK float, single fixes and multipath jumps thus cannot pull a map
-that RTK fixed fixes hold.
-
-Odometry drifts more than its covariance says (a yaw-rate bias, a scale error, slip in
-turns), so after a few seconds without a fix the pose may lie beyond the gate of good
-fixes. Fixes beyond the gate that agree with each other (`Innovation.agrees`: their offsets
-from the predicted antenna differ by no more than their noise and the odometry between
-them allow) show that the pose drifted: the gate then takes them and stays widened by the
-offset they showed until a fix passes the plain gate again. A multipath jump is a lone fix
-that agrees with neither neighbour, so it stays out.
-"""
+"""GNSS fixes as factors on the robot pose: each fix projected into the anchor's map frame,
+tied to the robot's next pose node through its lever arm, weighted with a floor per fix
+type, gated on its innovation (widened when several fixes agree the pose drifted), and
+held by a robust kernel as wide as that innovation."""
 
 from __future__ import annotations
 

@@ -1,23 +1,7 @@
-"""Noise that calibrates itself (issue 11): the scale of each noise term, estimated online
-from the run's own re-observations.
-
-A robot that sees an object again has, in its dead-reckoning frame, two positions of it:
-p_then and p_now (which detection is which object: `NoiseCalibration.observe`), p_then
-from the sighting before (mostly detection noise) or from the object's anchor (`Anchors`,
-mostly drift). Their difference d is detection noise twice and the chain's drift in
-between (drift.py), so, for a static object rightly paired,
-
-    Cov(d) = v_det (R_then + R_now) + v_trans J dC_trans J^T + v_head J dC_head J^T
-
-with R the configured detection covariances, dC the parts of the chain's prefix sum that
-the configured odometry's translation and heading noise build, J the point Jacobian at
-p_now, and v the variance factors this module estimates: the maximum-likelihood variance
-components, by Fisher scoring, over the pairs the run has seen, each weighted by how likely
-it is to be no outlier (a wrong association, a moved object: EM with a uniform outlier
-component). By default one factor scales translation and heading (`tie_odometry`). The
-configured values are the starting point (v = 1) and the factors are bounded (by default
-they only inflate), so a run with few pairs keeps them.
-"""
+"""Noise that calibrates itself: the variance factors of the detection, odometry translation
+and heading noise, estimated online by Fisher scoring from pairs of sightings of one object
+in a robot's dead-reckoning frame, whose difference is detection noise twice plus the
+chain's drift between them (geometry/drift.py); outlying pairs are down-weighted by EM."""
 
 from __future__ import annotations
 
@@ -29,23 +13,11 @@ from agrislam.config import CalibrationConfig
 from agrislam.geometry import se2
 
 TERMS = ("detection", "translation", "heading")
-# the parts of an odometry covariance, each scaled by its own factor (`NoiseScale.weights`)
-TRANSLATION, HEADING, CROSS = 0, 1, 2
 FISHER_ITERATIONS = 8
 PAIRS_A_CALL = 4096  # the pairs a call sums for an estimate under way (`Scoring`)
 MAX_STEP = 2.0  # the most one estimate changes a sigma factor by
 ANCHOR_SLOTS = 1 << 13  # objects a calibration keeps an anchor sighting of (`Anchors`)
 ANCHOR_SPAN = 10.0  # an anchor pairs while the drift since is 1 to this x the detection noise
-
-
-def odometry_parts(cov: np.ndarray) -> np.ndarray:
-    """(3, 3, 3) a motion increment's covariance (x, y, theta) split into what its
-    translation noise, its heading noise and their correlation build; they sum to `cov`."""
-    parts = np.zeros((3, 3, 3))
-    parts[TRANSLATION, :2, :2] = cov[:2, :2]
-    parts[HEADING, 2, 2] = cov[2, 2]
-    parts[CROSS] = cov - parts[TRANSLATION] - parts[HEADING]
-    return parts
 
 
 @dataclass
@@ -253,8 +225,8 @@ class NoiseCalibration:
                 return
             self._new = 0
             self._scoring = self._start(self.scale.variance)
-        # an iteration in parts, a part a call: an estimate over max_pairs pairs (16 ms at
-        # once) costs a step 0.4 ms (issue 14), and ends where one computed at once does
+        # an iteration in parts, a part a call: no step pays for a whole estimate, which
+        # ends where one computed at once does
         if not self._scoring.advance(PAIRS_A_CALL):
             return
         self.scale = NoiseScale(self._factors(self._scoring))

@@ -1,10 +1,6 @@
-"""Row prior knowledge (sec. 2.6.2): fit parallel rows a known distance apart to the mapped
-plants, give each row a node in the graph, tie plants near a row to it across the row
-only, and neighbouring row nodes to each other.
-
-Rows are the lines {p : n . p = offset + m * row_spacing}, n = (-sin a, cos a), for
-integer m (the lattice index); the world calls `RowTracker.after_step` once per step,
-after the back end's update."""
+"""Row prior knowledge (sec. 2.6.2): parallel rows a known distance apart fitted to the
+mapped plants, as lines n . p = offset + m * row_spacing, each a node in the graph that
+holds the plants near it across the row only."""
 
 from __future__ import annotations
 

@@ -16,6 +16,9 @@ import numpy as np
 
 from agrislam.geometry import se2
 
+# the parts of an odometry covariance, each scaled by its own factor (a noise calibration's)
+TRANSLATION, HEADING, CROSS = 0, 1, 2
+
 
 def adjoint(pose: np.ndarray) -> np.ndarray:
     """Ad(P) of SE(2) for (x, y, theta) tangent vectors: P Exp(eta) P^-1 = Exp(Ad eta)."""
@@ -45,3 +48,13 @@ def since_seen(
     cov = np.einsum("mij,kjl,mnl->mkin", jac, drift, jac)
     to_map = se2.rotation(map_heading - chain_pose[2])
     return to_map @ cov @ to_map.T
+
+
+def odometry_parts(cov: np.ndarray) -> np.ndarray:
+    """(3, 3, 3) a motion increment's covariance (x, y, theta) split into what its
+    translation noise, its heading noise and their correlation build; they sum to `cov`."""
+    parts = np.zeros((3, 3, 3))
+    parts[TRANSLATION, :2, :2] = cov[:2, :2]
+    parts[HEADING, 2, 2] = cov[2, 2]
+    parts[CROSS] = cov - parts[TRANSLATION] - parts[HEADING]
+    return parts

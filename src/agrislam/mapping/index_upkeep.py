@@ -7,11 +7,11 @@ from __future__ import annotations
 import numpy as np
 
 from agrislam.backend import GraphBackend
-from agrislam.config import AssociationConfig
 from agrislam.mapping.objects import ObjectTable
 from agrislam.mapping.spatial_index import SpatialIndex
 
 FRESH_MAX = 500  # objects moved since the last rebuild that force the next
+REBUILD_STEPS = 50  # steps between index rebuilds
 
 
 class IndexUpkeep:
@@ -26,10 +26,9 @@ class IndexUpkeep:
         touched: np.ndarray,
         objects: ObjectTable,
         backend: GraphBackend,
-        config: AssociationConfig,
     ) -> None:
         """Move the touched objects in the index, read a slice of the others again, and
-        rebuild it every `config.index_rebuild_steps`."""
+        rebuild it every REBUILD_STEPS."""
         touched = objects.active(touched)
         if len(touched):
             index.move(touched, backend.object_positions(touched))
@@ -46,6 +45,6 @@ class IndexUpkeep:
         if len(swept):
             index.settle(swept, backend.object_positions(swept))
         self._steps_since_rebuild += 1
-        if self._steps_since_rebuild >= config.index_rebuild_steps or index.n_fresh > FRESH_MAX:
+        if self._steps_since_rebuild >= REBUILD_STEPS or index.n_fresh > FRESH_MAX:
             index.rebuild()
             self._steps_since_rebuild = 0

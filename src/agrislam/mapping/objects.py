@@ -1,16 +1,6 @@
-"""The object table: every object the map has ever had, one row each, as a struct of
-arrays grown by doubling (DESIGN.md "State layout").
-
-It owns what the pipeline knows of an object apart from its position (the back end's)
-and its beliefs (its `BeliefTable`, the table's semantic columns, with the measurement
-count and last update the interest heuristic reads): whether it is active, merged into
-another or pruned; in how many frames it was seen and which robot saw it last, where (in
-that robot's dead-reckoning frame) and with what drift of its chain then (geometry/drift.py,
-estimation/noise_calibration.py); whether the pruner still watches it; whether it is still
-tentative and in how many frames it was in view (maintenance.Existence).
-`retire` is the one way out of the map: the parts that keep state of their own per
-object (the spatial index) subscribe to it.
-"""
+"""The object table: every object the map has ever had, one row each, as a struct of arrays
+grown by doubling (DESIGN.md "State layout"); all that is known of an object apart from
+its position (the back end's): its beliefs, status, sightings, and confirmation."""
 
 from __future__ import annotations
 

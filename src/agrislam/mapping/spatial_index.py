@@ -1,13 +1,6 @@
-"""The map's spatial index (DESIGN step 4, the gate's first cut): which objects lie near a
-point, in time that does not grow with the field.
-
-The plane is cut into square tiles, each with its own KD-tree over the positions its
-objects had when it was built. A tile is built again only when something in it changed:
-an object added or moved, or one whose position, read again, has moved more than half
-the margin since. On a field of 100,000 plants the robot changes a few tiles near it; one
-KD-tree over the whole field took 35-70 ms to build again (issue 14), a stall every
-`index_rebuild_steps` steps.
-"""
+"""The map's spatial index, the gate's first cut (DESIGN step 4): which objects lie near a
+point, in time that does not grow with the field. Square tiles each hold a KD-tree over the
+positions their objects had when it was built; only the tiles that changed are rebuilt."""
 
 from __future__ import annotations
 

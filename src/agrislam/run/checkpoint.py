@@ -56,6 +56,9 @@ FORMAT = b"agrislam-checkpoint 14"
 TRUSTED_MODULES = {"agrislam", "numpy", "collections", "copyreg", "builtins", "pydantic"}
 TRUSTED_MODULES |= {"pydantic_core", "scipy"}
 READ_CHUNK = 1 << 20
+# checkpoints are at least this many frames per MB of saved state apart: saving grows with
+# the map, so they grow apart and keep costing the same share of the run
+FRAMES_PER_MB = 250.0
 
 
 class ResumeError(ValueError):
@@ -177,7 +180,7 @@ class Checkpoints:
     """The checkpoints of one run in `path` (its map.sqlite): `take` when `due`, `resume`
     from the one there. `config`: `config_identity` of the run; `every`: its checkpoint
     section. The frames between checkpoints grow with the size of the state they save
-    (`frames_per_mb`), so that saving costs the same share of the run on any map; they
+    (FRAMES_PER_MB), so that saving costs the same share of the run on any map; they
     follow from the state alone, so a resumed run takes its next ones where the run it
     resumes would have."""
 
@@ -206,7 +209,7 @@ class Checkpoints:
         return self.every.every_frames > 0 and n_frames >= self._next
 
     def _after(self, n_frames: int, blob: bytes) -> None:
-        spacing = math.ceil(len(blob) / 1e6 * self.every.frames_per_mb)
+        spacing = math.ceil(len(blob) / 1e6 * FRAMES_PER_MB)
         self._next = n_frames + max(self.every.every_frames, spacing)
 
     def take(self, state: RunState) -> RunState:

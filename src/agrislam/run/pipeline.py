@@ -230,9 +230,10 @@ def _run(
     issues.update(checkpoints.issues if checkpoints is not None else {})
     result = RunResult(None, None, wall, n_frames, [], dict(issues), error, dict(counts))
     result.source_report = source.report if source is not None else None
-    result.noise = world.noise.report()
-    result.existence = world.existence.report()
-    result.gnss = world.gnss.summary()
+    learned = world.report()
+    result.noise, result.existence, result.gnss = (
+        learned[k] for k in ("noise", "existence", "gnss")
+    )
     if checkpoints is not None:
         result.checkpoints = {
             "resumed_at_record": resumed_at if saved is not None else None,
@@ -248,7 +249,7 @@ def _run(
         _let_go(world)  # the scores, the surface and the outputs reuse its memory
     if final_ids is not None:
         result.metrics = _score(result, final_ids, truth)
-    _add_surface(result, world.config.semantics)
+    _add_surface(result, world.settings.semantics)
     summary = _summary(result)
     if season is not None:
         summary["season"] = season.summary()

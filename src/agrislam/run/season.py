@@ -51,7 +51,7 @@ class SeasonRun:
     """Re-localisation and change finding of one survey against a saved map."""
 
     def __init__(self, prior: PriorMap, config: AgrislamConfig) -> None:
-        self.prior, self.config, self.cfg = prior, config, config.season
+        self.prior, self.config, self.cfg = prior, config, config.advanced.season
         map_var = np.trace(prior.cov, axis1=1, axis2=2) / 2.0 if len(prior) else None
         self.relocaliser = Relocaliser(prior.xy, self.cfg, map_var=map_var)
         self.fix: Fix | None = None  # the first robot's latest try
@@ -160,7 +160,9 @@ class SeasonRun:
         local, counts, label = cluster(xy, self.cfg.cluster_radius)
         if robot.dists and len(self.prior.ids):
             start = meta.survey_start if meta is not None and meta.survey_start else 0.0
-            world_beliefs = self.prior.belief_table(self.config.semantics, self.prior.t_abs - start)
+            world_beliefs = self.prior.belief_table(
+                self.config.advanced.semantics, self.prior.t_abs - start
+            )
             means = {
                 name: _cluster_mean(np.array(d)[recent], label, len(local))
                 for name, d in robot.dists.items()

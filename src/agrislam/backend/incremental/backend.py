@@ -83,6 +83,13 @@ SLOTS_SLACK, SLOTS_FLOOR = 8, 8000  # iSAM2 rebuilt when its slots pass slack x 
 # five robots sharing landmarks, 367 keyframes, 600 ms steps)
 REFOLD_MAX_KEYS = 100
 NEWEST_EXACT = 3  # per robot, see `_newest`
+# a marginal covariance read for association serves this many steps of each robot if its
+# object was seen since, ten times as many if not (each read is a Bayes-tree traversal)
+COVARIANCE_REUSE_STEPS = 10
+# a refine started by a turned keyframe during the survey solves one batch only up to this
+# many factors (the batch stalls the step it runs in); beyond, the keyframe graph is
+# relinearised and the full batch waits for the end of the survey
+TURN_REFINE_MAX_FACTORS = 50_000
 AGED_PER_FOLD = 2  # per robot: one that joins shrinks the others' share over folds, not in one
 
 
@@ -248,7 +255,7 @@ class IncrementalBackend(BackendBase):
         self._fold()
         if self.slam.refine_turn_deg and self._turned() > math.radians(self.slam.refine_turn_deg):
             alone = len(self._keyframes) == 1  # else its refold ties every robot's keyframes
-            self.refine(self.slam.turn_refine_max_factors if alone else 0, REFOLD_MAX_KEYS)
+            self.refine(TURN_REFINE_MAX_FACTORS if alone else 0, REFOLD_MAX_KEYS)
         return True
 
     def _turned(self) -> float:
@@ -541,7 +548,7 @@ class IncrementalBackend(BackendBase):
 
     @property
     def _reuse(self) -> int:
-        return self.slam.covariance_reuse_steps * max(len(self.graph.robots), 1)
+        return COVARIANCE_REUSE_STEPS * max(len(self.graph.robots), 1)
 
     def _frames(self, keyframes: np.ndarray) -> np.ndarray:
         """(k, 3) current pose of each of `keyframes`, each distinct one read once."""

@@ -250,7 +250,7 @@ class _Parser:
             raise BadRecordError(
                 "too_many_detections",
                 f"{len(objects)} detections in one frame; at most {most} "
-                "(sensor.limits.max_detections_per_frame)",
+                "(advanced.sensor.limits.max_detections_per_frame)",
             )
         dets = []
         for k, o in enumerate(objects):
@@ -524,7 +524,7 @@ def read_log(
     whose `sensor.limits` bound every value."""
     if config is None:
         return LogReader(source, strict=strict, schema=schema)
-    sensor = config.sensor
+    sensor = config.advanced.sensor
     return LogReader(
         source,
         strict=strict,

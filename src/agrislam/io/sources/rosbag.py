@@ -107,7 +107,9 @@ class _BagReader:
         self.schema: FieldSchema | None = config.field_schema()
         self.tree = TransformTree()
         self.base_frames: dict[str, str] = {}
-        self.clocks: RobotClocks[tuple[float, Any]] = RobotClocks(config.sensor.limits, "topic")
+        self.clocks: RobotClocks[tuple[float, Any]] = RobotClocks(
+            config.advanced.sensor.limits, "topic"
+        )
         self.odom_state: dict[str, tuple[np.ndarray, np.ndarray | None]] = {}
         self.robot_order: list[str] = []
         self.records: list[tuple[int, str | None, int, int, Record]] = []
@@ -289,14 +291,14 @@ class _BagReader:
 
     def _stamped(self, topic: str, role: str, stamp: float, msg: Any) -> None:
         """A message with a header stamp in its topic's time order."""
-        most = self.config.sensor.limits.max_detections_per_frame
+        most = self.config.advanced.sensor.limits.max_detections_per_frame
         if role == "detections" and len(msg.detections) > most:
             self.report.add(
                 "too_many_detections",
                 topic,
                 stamp,
                 f"{len(msg.detections)} detections in one frame; at most {most} "
-                "(sensor.limits.max_detections_per_frame)",
+                "(advanced.sensor.limits.max_detections_per_frame)",
             )
             return
         try:
@@ -323,7 +325,7 @@ class _BagReader:
         records sort where they were logged (after the records of that instant), those
         logged at 0 before everything. False (and an issue) for a record that fails."""
         try:
-            rec = check_record(rec, self.config.sensor.limits)
+            rec = check_record(rec, self.config.advanced.sensor.limits)
         except BadRecordError as bad:
             self.report.add(bad.reason, topic, getattr(rec, "t", None), bad.message)
             return False

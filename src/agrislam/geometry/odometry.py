@@ -3,16 +3,16 @@ since its last pose node, composed into one increment with its covariance; its
 dead-reckoning pose and track; and the drift its chain has accumulated
 (geometry/drift.py), which bounds how far it may have wandered since it saw an object.
 Covariances are kept as the parts the configured translation and heading noise build
-(estimation/noise_calibration.py), so that the noise scales estimated later apply to all of it.
+(estimation/noise_calibration.py), so that the noise scales estimated later apply to all
+of it.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from agrislam.estimation.noise_calibration import odometry_parts
 from agrislam.geometry import se2
-from agrislam.geometry.drift import adjoint
+from agrislam.geometry.drift import adjoint, odometry_parts
 from agrislam.growing import GrowingRows
 
 

@@ -1,0 +1,126 @@
+"""The association stage (sec. 2.4): candidates gated through the spatial index, the
+association matrix over the frame's detections and them, the GNN; then the safeguards
+beyond the paper (a lost robot rejoins the map, a gross range error goes to its landmark)
+and the detections left unassigned start new objects."""
+
+from __future__ import annotations
+
+from collections import Counter
+
+import numpy as np
+
+from agrislam.association.frame import FrameMatch
+from agrislam.association.gnn import (
+    assign,
+    association_matrix,
+    innovation_covariance,
+    max_association_distance,
+    rivals_on_one_metric,
+)
+from agrislam.association.range_outliers import RANGE_ERRORS, RangeOutliers
+from agrislam.association.rejoin import Rejoiner
+from agrislam.backend import GraphBackend
+from agrislam.config import AssociationConfig
+from agrislam.estimation.noise_calibration import NoiseScale
+from agrislam.estimation.point_spacing import PointSpacing
+from agrislam.geometry.drift import since_seen
+from agrislam.geometry.odometry import OdometryChain
+from agrislam.geometry.placed import PlacedDetections
+from agrislam.mapping.map_state import MapState
+from agrislam.records import Detection
+
+
+class Associator:
+    """A frame's detections to objects, new ones started for the rest."""
+
+    def __init__(
+        self,
+        config: AssociationConfig,
+        spacing: PointSpacing,
+        map_state: MapState,
+        backend: GraphBackend,
+        safeguards: tuple[Rejoiner, RangeOutliers],
+        tentative: bool,
+        issues: Counter[str],
+    ) -> None:
+        self.config, self.spacing, self.map, self.backend = config, spacing, map_state, backend
+        self.rejoiner, self.outliers = safeguards
+        self.tentative = tentative  # new objects wait for confirmation (maintenance/existence.py)
+        self.issues = issues
+
+    def associate(
+        self,
+        robot: str,
+        robot_index: int,
+        chain: OdometryChain,
+        scale: NoiseScale,
+        detections: list[Detection],
+        placed: PlacedDetections,
+        t: float,
+    ) -> FrameMatch:
+        """Where each detection of the robot's frame goes; the range errors of mapped
+        landmarks are reported as theirs and not mapped."""
+        object_ids = self._gnn(robot, robot_index, chain, scale, placed, t)
+        pose, objects = self.backend.current_pose(robot), self.map.objects
+        index = self.map.index
+        on_ray = self.outliers.of_new_objects(
+            pose, placed, object_ids, index, self.backend, objects
+        )
+        mapped = (on_ray < 0) | (not self.outliers.trusted)
+        if not mapped.all():  # gross range errors: reported as their objects, not mapped
+            self.issues[RANGE_ERRORS] += int((~mapped).sum())
+            detections = [d for d, m in zip(detections, mapped, strict=True) if m]
+            placed, object_ids = placed.subset(mapped), object_ids[mapped]
+        unassigned = np.flatnonzero(object_ids < 0)
+        new_ids = self.map.add(placed.xy[unassigned], t, self.tentative, self.backend)
+        object_ids[unassigned] = new_ids
+        self.outliers.born(object_ids[on_ray[mapped] >= 0], t, objects)
+        return FrameMatch(robot, t, pose, detections, placed, object_ids, new_ids, on_ray, mapped)
+
+    def reach(self, placed: PlacedDetections) -> float:
+        """The farthest an object may be from a detection and still be associated (none
+        before the first detections set d_inter)."""
+        cfg = self.config
+        if self.spacing.d_inter is None:
+            return 0.0
+        measured = (len(m) for m in placed.measurements)
+        n_measured = max(measured, default=0) if cfg.use_semantics else 0
+        sigma = cfg.gate_sigma_max * np.sqrt(cfg.gate_chi2)  # the Mahalanobis term's reach
+        return max_association_distance(self.spacing.d_inter, sigma, cfg.w_sem, n_measured)
+
+    def _gnn(
+        self,
+        robot: str,
+        robot_index: int,
+        chain: OdometryChain,
+        scale: NoiseScale,
+        placed: PlacedDetections,
+        t: float,
+    ) -> np.ndarray:
+        """GNN over the association matrix of gated candidates (sec. 2.4), then the lost
+        robot's rejoin; -1 = new."""
+        cfg, d_inter, backend = self.config, self.spacing.d_inter, self.backend
+        if len(placed) == 0:
+            return np.empty(0, dtype=int)
+        candidates = self.map.index.query(placed.xy, self.reach(placed))
+        if len(candidates) == 0:
+            return np.full(len(placed), -1)
+        object_cov = backend.object_covariances(candidates)  # may solve: then positions
+        object_xy = backend.object_positions(candidates)
+        innovation = None
+        if cfg.innovation_gate:
+            # what the robot's drift since it last saw each candidate adds (geometry/drift.py)
+            then = self.map.objects.last_seen(candidates, robot_index)
+            heading = backend.current_pose(robot)[2]
+            now, before = scale.odometry(chain.drift), scale.odometry(then.drift)
+            drift = since_seen(chain.pose, now, before, then.known, placed.robot_xy, heading)
+            own = innovation_covariance(placed, object_cov, drift, then.known)
+            innovation = rivals_on_one_metric(own, placed.xy, object_xy, d_inter)
+        beliefs = self.map.beliefs
+        matrix = association_matrix(
+            placed, candidates, object_xy, object_cov, beliefs, cfg, d_inter, t, innovation
+        )
+        chosen = assign(matrix)
+        ids = np.where(chosen >= 0, candidates[np.maximum(chosen, 0)], -1)
+        pose = backend.current_pose(robot)
+        return self.rejoiner.rejoin(pose[:2], placed, ids, t, backend)
