@@ -74,7 +74,14 @@ def build_stages(
     loops = LoopCloser(map_state.births, issues, gate, estimators.spacing)
     tentative = settings.maintenance.existence
     associator = Associator(
-        association, estimators.spacing, map_state, backend, (rejoiner, outliers), tentative, issues
+        association,
+        map_state,
+        backend,
+        frontend,
+        estimators,
+        (rejoiner, outliers),
+        tentative,
+        issues,
     )
     maintainer = Maintainer(
         settings.maintenance,

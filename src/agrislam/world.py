@@ -155,42 +155,33 @@ class WorldModel:
     def step(self, frame: Detections) -> StepReport:
         """One frame of one robot: the paper's pipeline, top to bottom."""
         t, robot, timer, s = frame.t, frame.robot, self._timer, self.stages
-        front, estimators = s.frontend, s.estimators
         with timer("check"):
-            detections = front.checked(frame)
-            if detections:
-                estimators.spacing.observe(front.detection_covariances(detections))
+            detections = s.frontend.checked(frame)
         with timer("add_pose"):
-            front.add_pose(robot, t)
+            s.frontend.add_pose(robot, t)
         with timer("place"):
-            placed = front.place(robot, detections)
+            placed = s.frontend.place(robot, detections)
         with timer("associate"):  # sec. 2.4
-            chain, robot_index = front.robots[robot], front.robot_index(robot)
-            scale = estimators.noise.scale
-            match = s.associator.associate(robot, robot_index, chain, scale, detections, placed, t)
+            match = s.associator.associate(robot, detections, placed, t)
         with timer("noise"):
-            reach = s.associator.reach(match.placed)
-            ids, new_ids = match.object_ids, match.new_ids
-            estimators.sighted(robot_index, chain, match.placed, ids, new_ids, reach)
+            s.estimators.sighted(match)
         with timer("beliefs"):  # sec. 2.5
-            s.map.beliefs.update(ids, [d.attributes for d in match.detections], t)
+            s.map.beliefs.update(match.object_ids, match.attributes, t)
         with timer("confirm"):
             dropped = s.maintainer.confirm(match)
         with timer("optimise"):  # sec. 2.6
-            # a tentative object's detections say where it is, not where the robot is
-            floor = np.where(s.map.objects.tentative[ids], estimators.spacing.d_inter, 0.0)
-            folded = front.measure(robot, match.detections, match.placed, ids, floor)
+            folded = s.frontend.measure(match, s.maintainer.floor(match))
         with timer("index"):
             s.map.follow(match.seen, s.backend)
         with timer("depth_bias"):
-            estimators.calibrate_depth(robot, match.placed, ids)
+            s.estimators.calibrate_depth(match)
         with timer("rows"):  # sec. 2.6.2
             touched = s.maintainer.due(match.seen, folded)
-            estimators.fit_rows(touched, len(match.detections))
+            s.estimators.fit_rows(touched, len(match.detections))
         with timer("maintain"):  # sec. 2.6.3
-            variance = float(estimators.noise.scale.variance[0])
-            result = s.maintainer.maintain(match, touched, dropped, robot_index, variance)
-        report = StepReport(t, robot, self.resolve(match.report_ids()), new_ids, result, {})
+            variance = float(s.estimators.noise.scale.variance[0])
+            result = s.maintainer.maintain(match, touched, dropped, variance)
+        report = StepReport(t, robot, self.resolve(match.report_ids()), match.new_ids, result, {})
         report.seconds = timer.close_step()
         return report
 

@@ -9,7 +9,6 @@ from collections import Counter
 
 import numpy as np
 
-from agrislam.association.frame import FrameMatch
 from agrislam.association.gnn import (
     assign,
     association_matrix,
@@ -21,11 +20,11 @@ from agrislam.association.range_outliers import RANGE_ERRORS, RangeOutliers
 from agrislam.association.rejoin import Rejoiner
 from agrislam.backend import GraphBackend
 from agrislam.config import AssociationConfig
-from agrislam.estimation.noise_calibration import NoiseScale
-from agrislam.estimation.point_spacing import PointSpacing
+from agrislam.estimation.estimators import Estimators
+from agrislam.frontend.frontend import FrontEnd
 from agrislam.geometry.drift import since_seen
 from agrislam.geometry.odometry import OdometryChain
-from agrislam.geometry.placed import PlacedDetections
+from agrislam.geometry.placed import FrameMatch, PlacedDetections
 from agrislam.mapping.map_state import MapState
 from agrislam.records import Detection
 
@@ -36,31 +35,28 @@ class Associator:
     def __init__(
         self,
         config: AssociationConfig,
-        spacing: PointSpacing,
         map_state: MapState,
         backend: GraphBackend,
+        frontend: FrontEnd,
+        estimators: Estimators,
         safeguards: tuple[Rejoiner, RangeOutliers],
         tentative: bool,
         issues: Counter[str],
     ) -> None:
-        self.config, self.spacing, self.map, self.backend = config, spacing, map_state, backend
+        self.config, self.map, self.backend = config, map_state, backend
+        self.frontend, self.estimators = frontend, estimators
+        self.spacing = estimators.spacing
         self.rejoiner, self.outliers = safeguards
         self.tentative = tentative  # new objects wait for confirmation (maintenance/existence.py)
         self.issues = issues
 
     def associate(
-        self,
-        robot: str,
-        robot_index: int,
-        chain: OdometryChain,
-        scale: NoiseScale,
-        detections: list[Detection],
-        placed: PlacedDetections,
-        t: float,
+        self, robot: str, detections: list[Detection], placed: PlacedDetections, t: float
     ) -> FrameMatch:
         """Where each detection of the robot's frame goes; the range errors of mapped
         landmarks are reported as theirs and not mapped."""
-        object_ids = self._gnn(robot, robot_index, chain, scale, placed, t)
+        chain, robot_index = self.frontend.robots[robot], self.frontend.robot_index(robot)
+        object_ids = self._gnn(robot, robot_index, chain, placed, t)
         pose, objects = self.backend.current_pose(robot), self.map.objects
         index = self.map.index
         on_ray = self.outliers.of_new_objects(
@@ -75,7 +71,8 @@ class Associator:
         new_ids = self.map.add(placed.xy[unassigned], t, self.tentative, self.backend)
         object_ids[unassigned] = new_ids
         self.outliers.born(object_ids[on_ray[mapped] >= 0], t, objects)
-        return FrameMatch(robot, t, pose, detections, placed, object_ids, new_ids, on_ray, mapped)
+        ids, reach = (object_ids, new_ids, on_ray, mapped), self.reach(placed)
+        return FrameMatch(robot, robot_index, chain, t, pose, detections, placed, *ids, reach)
 
     def reach(self, placed: PlacedDetections) -> float:
         """The farthest an object may be from a detection and still be associated (none
@@ -93,7 +90,6 @@ class Associator:
         robot: str,
         robot_index: int,
         chain: OdometryChain,
-        scale: NoiseScale,
         placed: PlacedDetections,
         t: float,
     ) -> np.ndarray:
@@ -111,7 +107,7 @@ class Associator:
         if cfg.innovation_gate:
             # what the robot's drift since it last saw each candidate adds (geometry/drift.py)
             then = self.map.objects.last_seen(candidates, robot_index)
-            heading = backend.current_pose(robot)[2]
+            heading, scale = backend.current_pose(robot)[2], self.estimators.noise.scale
             now, before = scale.odometry(chain.drift), scale.odometry(then.drift)
             drift = since_seen(chain.pose, now, before, then.known, placed.robot_xy, heading)
             own = innovation_covariance(placed, object_cov, drift, then.known)

@@ -15,8 +15,7 @@ from agrislam.estimation.noise_calibration import NoiseCalibration
 from agrislam.estimation.point_spacing import PointSpacing
 from agrislam.estimation.rows import RowTracker
 from agrislam.geometry import se2
-from agrislam.geometry.odometry import OdometryChain
-from agrislam.geometry.placed import PlacedDetections
+from agrislam.geometry.placed import FrameMatch
 from agrislam.mapping.map_state import MapState
 
 
@@ -24,6 +23,7 @@ class Estimators:
     """The survey's own noise, depth bias and d_inter; its GNSS fixes and rows."""
 
     def __init__(self, settings: Settings, map_state: MapState, backend: GraphBackend) -> None:
+        """The estimators of a survey with `settings` over its map and back end."""
         sensor = settings.sensor
         self.noise = NoiseCalibration(sensor.calibration)
         self.depth_bias = DepthBiasEstimator(sensor.depth_bias)
@@ -33,19 +33,13 @@ class Estimators:
         self.depth_min_views = sensor.depth_bias_min_views if sensor.estimate_depth_bias else None
         self.map, self.backend = map_state, backend
 
-    def sighted(
-        self,
-        robot: int,
-        chain: OdometryChain,
-        placed: PlacedDetections,
-        object_ids: np.ndarray,
-        new_ids: np.ndarray,
-        reach: float,
-    ) -> None:
+    def sighted(self, match: FrameMatch) -> None:
         """The frame's sightings, in the robot's dead-reckoning frame: with the robot's
-        earlier sightings of the objects around (within 3 `reach`), they scale the noise
-        (estimation/noise_calibration.py); then the objects were last seen here."""
-        objects = self.map.objects
+        earlier sightings of the objects around (within 3 association reaches), they scale
+        the noise (estimation/noise_calibration.py); then the objects were last seen here."""
+        objects, placed, chain = self.map.objects, match.placed, match.chain
+        robot = match.robot_index
+        object_ids, new_ids, reach = match.object_ids, match.new_ids, match.reach
         configured = placed.robot_cov / self.noise.scale.variance[0]
         xy, cov = se2.to_map_frame(chain.pose, placed.robot_xy, configured)
         if self.noise.enabled and len(placed):
@@ -61,10 +55,11 @@ class Estimators:
                 self.noise.observe(frame, robot, around, last, chosen, dist)
         objects.seen(object_ids, robot, chain.drift, xy, cov)
 
-    def calibrate_depth(self, robot: str, placed: PlacedDetections, object_ids: np.ndarray) -> None:
+    def calibrate_depth(self, match: FrameMatch) -> None:
         """Along-ray residuals of well-triangulated objects refine the depth bias."""
         if self.depth_min_views is None:
             return
+        robot, placed, object_ids = match.robot, match.placed, match.object_ids
         known = self.map.objects.n_meas[object_ids] > self.depth_min_views
         if known.any():
             xy = self.backend.object_positions(object_ids[known])

@@ -15,7 +15,7 @@ from agrislam.estimation.estimators import Estimators
 from agrislam.frontend.sensor_model import SensorModel
 from agrislam.geometry import se2
 from agrislam.geometry.odometry import OdometryChain
-from agrislam.geometry.placed import PlacedDetections
+from agrislam.geometry.placed import FrameMatch, PlacedDetections
 from agrislam.records import Anchor, Detection, Detections, GnssFix, Odometry, RobotStart
 from agrislam.semantics.measurements import informative_measurements
 
@@ -63,13 +63,16 @@ class FrontEnd:
 
     def checked(self, frame: Detections) -> list[Detection]:
         """The frame's detections with their measurements checked against the schema; a bad
-        attribute is dropped (and counted), the detection's geometry kept."""
+        attribute is dropped (and counted), the detection's geometry kept. The first ones
+        teach the survey's d_inter where it has none (estimation/point_spacing.py)."""
         checked = []
         for det in frame.objects:
             det, dropped = det.within_schema(self.schema)
             for name in dropped:
                 self.issues[f"measurement of {name!r} not in the schema: dropped"] += 1
             checked.append(det)
+        if checked and not self.estimators.spacing.settled:
+            self.estimators.spacing.observe(self.detection_covariances(checked))
         return checked
 
     def detection_covariances(self, detections: list[Detection]) -> np.ndarray:
@@ -110,22 +113,16 @@ class FrontEnd:
         measurements = [informative_measurements(self.schema, d.attributes) for d in detections]
         return PlacedDetections(map_xy, map_cov, measurements, xy, cov, pose_cov)
 
-    def measure(
-        self,
-        robot: str,
-        detections: list[Detection],
-        placed: PlacedDetections,
-        object_ids: np.ndarray,
-        floor: np.ndarray,
-    ) -> bool:
+    def measure(self, match: FrameMatch, floor: np.ndarray) -> bool:
         """The frame's detections as factors between the robot's pose and their objects,
         with `floor` (m,) m of isotropic noise added to each; one solve of the back end.
         True if the solve folded a window."""
         sigma_scale = float(self.estimators.noise.scale.sigma[0])
-        factors = (detections, object_ids.tolist(), placed.robot_xy, placed.robot_cov, floor)
-        for det, obj, xy, cov, f in zip(*factors, strict=True):
+        placed = match.placed
+        factors = (match.detections, match.object_ids.tolist(), placed.robot_xy, placed.robot_cov)
+        for det, obj, xy, cov, f in zip(*factors, floor, strict=True):
             measurement = self.sensor.measurement(det, xy, cov, sigma_scale, float(f))
-            self.backend.add_observation(robot, obj, measurement)
+            self.backend.add_observation(match.robot, obj, measurement)
         return self.backend.update()
 
     # ----------------------------------------------------------------- helpers

@@ -1,5 +1,5 @@
-"""A frame's detections placed in the map frame (DESIGN step 3), as the association and
-the estimators take them."""
+"""A frame's detections placed in the map frame (DESIGN step 3), and once associated, the
+objects they went to (sec. 2.4): what the stages after the front end take."""
 
 from __future__ import annotations
 
@@ -8,7 +8,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from agrislam.records import Measurement
+from agrislam.geometry.odometry import OdometryChain
+from agrislam.records import Detection, Measurement
 
 
 @dataclass(frozen=True, slots=True)
@@ -35,3 +36,38 @@ class PlacedDetections:
             [self.measurements[i] for i in rows.tolist()],
             *(None if a is None else a[rows] for a in robot_frame),
         )
+
+
+@dataclass(slots=True)
+class FrameMatch:
+    """A frame's detections that are mapped, with the objects they went to; the range
+    errors of mapped landmarks are reported as theirs, not mapped."""
+
+    robot: str
+    robot_index: int  # the robot's number, in the order robots were first heard of
+    chain: OdometryChain  # its dead reckoning
+    t: float
+    pose: np.ndarray  # (3,) the robot's pose when the frame was associated
+    detections: list[Detection]  # those mapped
+    placed: PlacedDetections  # those mapped
+    object_ids: np.ndarray  # (m,) of the mapped detections, new objects included
+    new_ids: np.ndarray  # the objects the frame started
+    reported: np.ndarray  # (all,) each detection's object: range errors their landmark's
+    mapped: np.ndarray  # (all,) which detections are mapped
+    reach: float  # m, the farthest an object could be from a detection and be associated
+
+    @property
+    def attributes(self) -> list:
+        """Each mapped detection's measured attributes."""
+        return [d.attributes for d in self.detections]
+
+    @property
+    def seen(self) -> np.ndarray:
+        """The objects the frame detected, each once."""
+        return np.unique(self.object_ids)
+
+    def report_ids(self) -> np.ndarray:
+        """(all,) the object each of the frame's detections went to."""
+        reported = self.reported.copy()
+        reported[self.mapped] = self.object_ids
+        return reported

@@ -10,12 +10,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from agrislam.association.frame import FrameMatch
 from agrislam.association.loop_closure import LoopCloser
 from agrislam.association.range_outliers import RangeOutliers
 from agrislam.backend import GraphBackend
 from agrislam.config import MaintenanceConfig
 from agrislam.estimation.point_spacing import PointSpacing
+from agrislam.geometry.placed import FrameMatch
 from agrislam.maintenance.existence import Existence
 from agrislam.maintenance.merger import Merger
 from agrislam.maintenance.pruning import AfterFold, prune_due
@@ -56,6 +56,12 @@ class Maintainer:
         self.outliers.saw(match.pose, placed, match.object_ids, index, self.backend, objects)
         return self.existence.look(match.pose, index, match.seen, objects, self.first_own)
 
+    def floor(self, match: FrameMatch) -> np.ndarray:
+        """(m,) m of isotropic noise each detection's factor gets: d_inter for a tentative
+        object's, whose detections say where it is, not where the robot is."""
+        tentative = self.map.objects.tentative[match.object_ids]
+        return np.where(tentative, self.spacing.d_inter, 0.0)
+
     def due(self, seen: np.ndarray, folded: bool) -> np.ndarray:
         """The objects whose row and merge work is due now: those seen, unless this step
         folded a window (then the next step's, with those waiting)."""
@@ -66,7 +72,6 @@ class Maintainer:
         match: FrameMatch,
         touched: np.ndarray,
         dropped: np.ndarray,
-        robot_index: int,
         noise_variance: float,
     ) -> MaintenanceResult:
         """Merge near objects and a returning robot's copies (sec. 2.6.3), prune the due
@@ -75,7 +80,8 @@ class Maintainer:
             self.merger.saw(match.object_ids, match.placed.xy, 2.0 * self.spacing.d_inter)
         result = self._merge_and_prune(touched, match.t)
         objects = self.map.objects
-        loop = self.loops.pairs(robot_index, match.t, objects, self.backend, noise_variance)
+        robot = match.robot_index
+        loop = self.loops.pairs(robot, match.t, objects, self.backend, noise_variance)
         result.merged += self._merge(loop)
         result.pruned += self._prune(objects.active(dropped).tolist())
         return result
