@@ -9,7 +9,7 @@ detections: clutter, a neighbour), with the binomial likelihoods
 
 p_d the detection rate of a plant in view and e the rate of stray detections on a point.
 Used for plants gone between surveys (season/changes.py) and for the clutter of one survey
-(maintenance.py).
+(maintenance/).
 """
 
 from __future__ import annotations

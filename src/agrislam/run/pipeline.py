@@ -104,8 +104,8 @@ class RunResult:
     records: dict[str, int] = field(default_factory=dict)
     output_errors: dict[str, str] = field(default_factory=dict)
     source_report: SourceReport | None = None
-    noise: dict[str, Any] | None = None  # the noise scales the run estimated (calibration.py)
-    existence: dict[str, Any] | None = None  # young objects confirmed, dropped (maintenance.py)
+    noise: dict[str, Any] | None = None  # the noise scales the run estimated (noise_calibration)
+    existence: dict[str, Any] | None = None  # young objects confirmed, dropped (maintenance/)
     gnss: dict[str, int] = field(default_factory=dict)  # fixes used and rejected
     checkpoints: dict[str, Any] | None = None  # resumed at which record, checkpoints taken
     season: dict[str, Any] | None = None  # a survey that continued a saved map
