@@ -9,7 +9,7 @@ from typing import Literal
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from agrislam.config import FieldSchema
-from agrislam.sim.arena_config import ArenaConfig  # noqa: F401 (older imports of it from here)
+from agrislam.sim.arena_config import ArenaConfig  # noqa: F401 (re-exported for imports outside sim)
 from agrislam.sim.gnss_config import DistanceDrift, GnssSimConfig
 
 
