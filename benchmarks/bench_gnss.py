@@ -3,7 +3,7 @@
 For each seed and scenario, the same field and odometry: RTK fixed most of the time with
 some float; the same with 30 % of the survey in outages of minutes; the same with 2 %
 multipath outliers of metres; and without GNSS (the baseline, also scored after a rigid
-alignment, as a map without GNSS can only be). Prints plants within 0.1 m of the truth,
+alignment, as maps without GNSS are scored). Prints plants within 0.1 m of the truth,
 plant and trajectory RMS, the fixes used and rejected, and the median step time against the
 run without GNSS and the GNSS stage's own share of it. Targets (10,000 plants): RTK >= 98 %
 within 0.1 m, plant RMS <= 0.03 m, trajectory RMS <= 0.03 m; outages >= 95 % within
