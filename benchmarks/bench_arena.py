@@ -1,4 +1,4 @@
-"""The arena scenario of issue 11, item 4, with the DEFAULT configuration, against its targets.
+"""The arena scenario with the DEFAULT configuration, against its targets.
 
 Five robots drive random paths for 15 minutes among 17 point landmarks (a triple and two
 pairs 0.15-0.2 m apart) in a 15 m x 8 m arena, with 50 Hz drifting odometry whose heading
@@ -93,7 +93,7 @@ class ClockedWorld(WorldModel):
 
 @dataclass
 class Score:
-    """One run's figures against the issue's targets."""
+    """One run's figures against the arena's targets."""
 
     mapped: int
     n_truth: int
@@ -225,7 +225,7 @@ def score(result: RunResult, world: ClockedWorld, records: list[Record], survey_
 
 def mean_score(scores: list[Score]) -> Score:
     """The seeds' mean of each figure (counts to 0.1): a change is judged on it, as one
-    seed's association swings by a few points with any small change (issue 11)."""
+    seed's association swings by a few points with any small change."""
     fields = {}
     for name in Score.__dataclass_fields__:
         values = [getattr(s, name) for s in scores]

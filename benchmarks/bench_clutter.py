@@ -1,4 +1,4 @@
-"""Clutter and gross range outliers on the default 400-plant survey (issue 12), with the
+"""Clutter and gross range outliers on the default 400-plant survey, with the
 DEFAULT configuration against the paper's method in the same run.
 
 Scenarios, each on the same seeds: the clean survey; 50 % clutter (one false detection of

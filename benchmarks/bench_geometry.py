@@ -1,4 +1,4 @@
-"""Geometry back end benchmark (issue 3): per-step latency and final map accuracy of the
+"""Geometry back end benchmark: per-step latency and final map accuracy of the
 incremental back end (iSAM2 with keyframes), plain iSAM2 and the paper's batch baseline
 (whole-graph LM every step) on simulated lawnmower surveys of 400, 2,000 and 10,000
 plants with known association (the detector's truth ids).

@@ -1,16 +1,15 @@
-"""Georeferenced maps (issue 13's targets): simulated surveys scored WITHOUT alignment.
+"""Georeferenced maps against their targets: simulated surveys scored WITHOUT alignment.
 
 For each seed and scenario, the same field and odometry: RTK fixed most of the time with
 some float; the same with 30 % of the survey in outages of minutes; the same with 2 %
 multipath outliers of metres; and without GNSS (the baseline, also scored after a rigid
-alignment, the figures before issue 13). Prints plants within 0.1 m of the truth, plant and
-trajectory RMS, the fixes used and rejected, and the median step time against the run
-without GNSS and the GNSS stage's own share of it. Targets (10,000 plants): RTK >= 98 %
+alignment, as maps without GNSS are scored). Prints plants within 0.1 m of the truth,
+plant and trajectory RMS, the fixes used and rejected, and the median step time against the
+run without GNSS and the GNSS stage's own share of it. Targets (10,000 plants): RTK >= 98 %
 within 0.1 m, plant RMS <= 0.03 m, trajectory RMS <= 0.03 m; outages >= 95 % within
 0.1 m; multipath no more than 10 % worse than RTK; step time with GNSS <= 1.1 x without.
 
-    nice python benchmarks/bench_gnss.py [--plants 10000] [--seeds 1 2 3]
-"""
+    nice python benchmarks/bench_gnss.py [--plants 10000] [--seeds 1 2 3]"""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""The whole pipeline against ground truth and the clock (issue 5's targets).
+"""The whole pipeline against ground truth and the clock, against its targets.
 
 Prints, for the default 400-plant simulation and seeds 1-5: plants mapped, duplicates and
 false objects, colour and size accuracy, trajectory RMS (optimised vs dead reckoning),
@@ -107,10 +107,9 @@ def paper_simulation(seeds: list[int], variants: dict[str, dict[str, Any]]) -> N
 
 
 def victoria_park() -> None:
-    """No config (issue 11: the noise scales estimated from the log, the heading factor
-    within the 5-10 the hand tuning found), the example config, and beside them the
-    paper's association (the K_n gate of sec. 2.4 with the log's own odometry sigmas and
-    the default kernel) on the same log."""
+    """No config (the noise scales estimated from the log), the example config, and beside
+    them the paper's association (the K_n gate of sec. 2.4 with the log's own odometry sigmas
+    and the default kernel) on the same log."""
     example = load_mapping(ROOT / "examples" / "victoria_park.yaml")
     paper = {
         **example,

@@ -1,4 +1,4 @@
-"""Checkpoints and `--resume` (issue 12) against their targets, with the real CLI.
+"""Checkpoints and `--resume` against their targets, with the real CLI.
 
 A 2,000-plant survey (`sim:?plants=2000`) is recorded to a JSONL log with
 `agrislam simulate --record`; then, each `agrislam run LOG` in its own process:

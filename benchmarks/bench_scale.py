@@ -1,30 +1,24 @@
-"""Whole fields in bounded memory (issue 14): max RSS, memory per plant, step times and
-wall time against survey time, from 400 to 10,000 plants (100,000 with --huge).
+"""Whole fields in bounded memory: max RSS, memory per plant, step times and wall time
+against survey time, from 400 to 10,000 plants (100,000 with --huge).
 
 Each survey runs in a child process of its own (the simulator as the source, the whole
 pipeline with every output written to a temporary folder), which reports its own peak
-resident set size (`getrusage`), so one survey's memory never counts for another. A child
-with a 40-plant survey gives the interpreter's and libraries' baseline; the slope per plant
-(between the two largest sizes) extrapolates the largest to 1,000,000 plants. Survey time
-is the survey's own (its time stamps) and its frames at 1 frame per second. The smallest
-size runs again after the largest, and over and over beside each larger size (on the
-other core, in a child of its own): this machine's speed drifts by 20-60 % over the half
-hour the largest takes (the same 400-plant survey: 4.3 to 5.7 ms median step within an
-hour), so the step ratios are given twice: against the smallest size's two runs before and
-after, and against its runs beside the largest, at the same moments of the machine (the
-ratio the target is judged on). Every child does its linear algebra on one thread.
-Accuracy is the simulator's truth: the trajectory's RMS against dead reckoning's (the
-default survey has no GNSS, so a large field bends along its rows: rigid alignment cannot
-take that out) and the association's purity.
+resident set size, so one survey's memory never counts for another. A 40-plant child gives
+the interpreter's and libraries' baseline; the slope per plant between the two largest
+sizes extrapolates to 1,000,000 plants. The machine's speed drifts over the time the
+largest size takes, so the smallest size also runs before and after it and over and over
+beside it (on the other core): the step ratio the target is judged on is against its runs
+beside the largest, at the same moments of the machine. Every child does its linear
+algebra on one thread. Accuracy is the simulator's truth: the trajectory's RMS against dead
+reckoning's (no GNSS: a large field bends along its rows, which rigid alignment cannot take
+out) and the association's purity.
 
     python benchmarks/bench_scale.py [--sizes 400 10000] [--huge] [--seed 2]
                                      [--baseline-src ../other-checkout/src]
                                      [--set '{"slam": {"keyframes_kept": 0}}']
 
-`--baseline-src` runs the same surveys with another checkout's code (the previous state)
-beside this one's, in the same run; `--set` changes the configuration of both (the title
-then says it is not the default).
-"""
+`--baseline-src` runs the same surveys with another checkout's code beside this one's;
+`--set` changes the configuration of both (the title then says it is not the default)."""
 
 from __future__ import annotations
 

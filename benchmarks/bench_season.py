@@ -1,4 +1,4 @@
-"""Issue 15: a field across the season. Simulated seasons of 3 surveys (days 0, 7, 14),
+"""A field across the season, against its targets. Simulated seasons of 3 surveys (days 0, 7, 14),
 each a log of its own whose robot starts at an unknown place along its route (no start
 pose, no GNSS), plants growing (App. B), 5 % removed and 10 weeds emerging between surveys.
 Day 0 is mapped from nothing; days 7 and 14 continue the previous day's map.sqlite.
@@ -325,7 +325,7 @@ def main() -> None:
 
 
 def verdict(rows: list[dict], refusals: list[dict], load_s: float) -> None:
-    """Issue 15's targets, each with the figure it is judged on."""
+    """The season's targets, each with the figure it is judged on."""
     later = [r for r in rows if "localised" in r]
     first = {r["seed"]: r for r in rows if "localised" not in r}
 

@@ -1,4 +1,4 @@
-"""Benchmark of the semantic belief engine at field scale (issue 2).
+"""Benchmark of the semantic belief engine at field scale.
 
     python benchmarks/bench_semantics.py [--objects 100000] [--frames 300] [--repeats 15]
 

@@ -1,6 +1,6 @@
-"""Issue 12's fuzzing target: at least 10,000 mutated survey logs through the whole lenient
-pipeline (read, map, write every output), with zero uncaught exceptions and zero runs
-without outputs.
+"""The fuzzing target for hostile input: at least 10,000 mutated survey logs through the
+whole lenient pipeline (read, map, write every output), with zero uncaught exceptions and
+zero runs without outputs.
 
 Each run takes a small simulated survey (30 plants, about 230 lines), changes one field or
 one line of it (tests/log_mutations.py: numbers to NaN, inf, huge, strings, negative;
@@ -15,9 +15,9 @@ mode into a fresh folder and sorts the outcome:
 - uncaught: any other exception (a bug), with the mutation to replay it;
 - no outputs: a run that ended without raising and without its outputs (a bug).
 
-Then it prints the skipped lines by reason over all runs. report.png (matplotlib: half of a
-small run's time) is drawn in every `--report-every`-th run (default 10); the other runs
-write a placeholder in its place, so ten thousand runs take about an hour on two cores.
+Then it prints the skipped lines by reason over all runs. report.png, the dearest output of
+a small run, is drawn in every `--report-every`-th run (default 10); the other runs write a
+placeholder in its place.
 
     python benchmarks/fuzz_logs.py [--runs 10000] [--workers 2] [--seed 1] [--report-every 10]
 """

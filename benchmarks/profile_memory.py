@@ -1,4 +1,4 @@
-"""Where a survey's memory goes (issue 14): the mapping's parts and each output writer.
+"""Where a survey's memory goes: the mapping's parts and each output writer.
 
 One survey (the simulator as the source) is mapped without outputs; then
 - each part of the map's state is released in turn (the glibc heap trimmed after each),

@@ -169,7 +169,7 @@ def test_run_names_what_it_reads_when_the_input_is_unknown(tmp_path):
     assert result.exit_code == 2 and "no such file" in result.output
 
 
-# ------------------------------------------------------------- issue 12: errors for people
+# ----------------------------------------------------------------------- errors for people
 
 
 @pytest.fixture(scope="module")

@@ -100,7 +100,7 @@ def simulate(
         list[float] | None,
         typer.Option(
             help="A season: one survey log per day (--days 0 7 14), each mapped on the "
-            "previous day's map, its robot starting at an unknown place (issue 15).",
+            "previous day's map, its robot starting at an unknown place.",
         ),
     ] = None,
 ) -> None:
@@ -174,7 +174,7 @@ def history(
     with _user_errors():
         hist = read_history(map_file)
     if not hist.surveys:
-        _fail(f"{map_file}: no history (a map written before issue 15)", 1)
+        _fail(f"{map_file}: no history (a map written by an older agrislam)", 1)
     if plant is not None:
         rows = hist.plant(plant)
         if not rows:
@@ -254,7 +254,7 @@ def run(
             exists=True,
             dir_okay=False,
             help="Continue this saved map.sqlite: re-localise in it, keep its plants' ids, "
-            "list what changed (issue 15).",
+            "list what changed.",
         ),
     ] = None,
 ) -> None:

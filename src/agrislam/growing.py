@@ -17,20 +17,18 @@ def grown(old: np.ndarray, size: int, fill: float) -> np.ndarray:
     doubling where they are kept)."""
     shape = (size, *old.shape[1:])
     # zeros come from calloc, whose pages are touched only when written: doubling a whole
-    # field's table (tens of MB) then costs the copy of the old rows alone, not a fill too
+    # field's table then costs the copy of the old rows alone, not a fill too
     new = np.zeros(shape, dtype=old.dtype) if fill == 0 else np.full(shape, fill, old.dtype)
     new[: len(old)] = old
     return new
 
 
 class Doubling:
-    """How a table's columns grow: doubled when full (amortised O(1) a row), the doubled
-    arrays made ahead. Memory touched for the first time is what a doubling costs (the copy
-    of a whole field's factor store into fresh pages took ~190 ms of one step, into pages
-    already written ~2 ms): over the last 1/AHEAD of the capacity, each reserve allocates
-    and writes a slice of the doubled columns (their fill, or zeros over the rows the copy
-    will take), so that the row which fills the table only copies. `fills` gives the value
-    of a column's rows not yet used (zero where it names no column)."""
+    """How a table's columns grow: doubled when full (amortised O(1) a row), the doubled arrays
+    made ahead, since memory touched for the first time is what a doubling costs: over the last
+    1/AHEAD of the capacity each reserve writes a slice of the doubled columns (their fill, or
+    zeros where the copy goes), so the row that fills the table only copies. `fills`: the
+    value of a column's unused rows (zero where it names no column)."""
 
     def __init__(self, fills: Mapping[Hashable, float] | None = None) -> None:
         self.fills = dict(fills or {})

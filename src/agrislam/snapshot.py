@@ -14,7 +14,7 @@ from agrislam.semantics.heuristic import InterestSurface
 STATUS_ACTIVE = 0
 STATUS_MERGED = 1
 STATUS_PRUNED = 2
-STATUS_GONE = 3  # a saved plant not found where the survey looked (issue 15)
+STATUS_GONE = 3  # a saved plant not found where the survey looked
 
 
 @dataclass(frozen=True, slots=True)

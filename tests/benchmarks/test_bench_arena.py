@@ -1,4 +1,4 @@
-"""benchmarks/bench_arena.py's scoring: the mean row a change is judged on (issue 11)."""
+"""benchmarks/bench_arena.py's scoring: the mean row a change is judged on."""
 
 import numpy as np
 

@@ -1,4 +1,4 @@
-"""benchmarks/bench_scale.py's step ratio (issue 14): the smallest survey runs beside the
+"""benchmarks/bench_scale.py's step ratio: the smallest survey runs beside the
 larger one, so that both are timed on the machine of the same moment."""
 
 import numpy as np

@@ -1,7 +1,7 @@
-"""Checkpoints and resume (issue 12, agrislam/checkpoint.py): a world saved and read back
-carries on exactly like another copy of the same save; a run killed with SIGKILL leaves
-its last checkpoint readable and resumes to the map of a run never stopped; resume refuses
-a checkpoint of another input or config, and starts over when there is none."""
+"""Checkpoints and resume (run/checkpoint.py): a world saved and read back carries on exactly
+like another copy of the same save; a run killed with SIGKILL leaves its last checkpoint
+readable and resumes to the map of a run never stopped; resume refuses a checkpoint of
+another input or config, and starts over when there is none."""
 
 from __future__ import annotations
 

@@ -1,13 +1,12 @@
-"""Issue 12, the rows of its two tables that are the input's: each edit of one record of a
-small simulated survey log, read in strict mode (a clear error naming the line and the
-field) and mapped in lenient mode (one skipped and reported record, and otherwise the map
-of the clean log). Rows of the back end (an odometry delta of 1e308 reaching GTSAM, 1,000
-robots) are stopped here at the door; what GTSAM does with them is geometry's.
+"""Hostile input, record by record: each edit of one record of a small simulated survey log,
+read in strict mode (a clear error naming the line and the field) and mapped in lenient mode
+(one skipped and reported record, and otherwise the map of the clean log). Rows for the back
+end (an odometry delta of 1e308 reaching GTSAM, 1,000 robots) are stopped here at the door.
 
-What "otherwise the same map" is, measured: a skipped detection, truth or meta-free
-record changes nothing of the map's objects beyond that one detection; a skipped odometry
-record is bridged (io/sources/odometry_gaps.py), so every object is still mapped, within
-a few centimetres of where the clean log puts it."""
+"Otherwise the same map": a skipped detection, truth or meta-free record changes nothing of
+the map's objects beyond that one detection; a skipped odometry record is bridged
+(io/sources/odometry_gaps.py), so every object is still mapped within a few centimetres of
+where the clean log puts it."""
 
 from __future__ import annotations
 
@@ -109,7 +108,7 @@ def _set(key: str, value: Any, index: int | None = None) -> Callable[[dict[str, 
     return change
 
 
-# (row of the issue, record type, which one, the edit, reason); the odometry rows are
+# (what is done, record type, which one, the edit, reason); the odometry rows are
 # bridged (BRIDGED), the others leave the map as it was
 ODOMETRY_ROWS = [
     ("one odometry record early with t = 1e9", 4, _set("t", 1e9), "time_jump", "t = 1000000000"),
@@ -189,7 +188,7 @@ def test_a_line_json_cannot_take_is_a_bad_line(lines, clean, row, bad_line, reas
 
 
 def test_a_frame_of_too_many_detections_is_refused_whole_and_fast(lines, clean):
-    """Issue 12: one frame of 100,000 detections never finished (10,000 took 34 s)."""
+    """One frame of 100,000 detections is refused whole, before any work is spent on it."""
     rng = np.random.default_rng(0)
     many = [{"xy": [float(x), float(y)]} for x, y in rng.uniform(0.5, 2.0, (100_000, 2))]
     i = _index(lines, "detections", 12, with_objects=True)
@@ -230,7 +229,7 @@ def test_a_bad_meta_stops_the_run_in_either_mode(lines, row, change, reason, say
 
 
 def test_a_log_of_only_its_meta_line_has_no_usable_data(lines):
-    """Issue 12: KeyError "robot 'r1' was never added"; now an empty map that says so."""
+    """An empty map that says so (it was a KeyError "robot 'r1' was never added")."""
     for strict in (True, False):
         result = run_survey(read_log(io.BytesIO(_log(lines[:1])), strict=strict), WorldModel())
         assert not result.usable and len(result.snapshot.objects) == 0
@@ -238,15 +237,15 @@ def test_a_log_of_only_its_meta_line_has_no_usable_data(lines):
 
 
 def test_records_of_a_robot_not_in_meta_and_a_meta_robot_that_never_drives(lines, clean):
-    """Issue 12: KeyError after the whole survey. A robot without a start pose starts at
-    the origin (spec); the meta's robot that never drove is reported."""
+    """A robot without a start pose starts at the origin (spec); the meta's robot that never
+    drove is reported (both were a KeyError after the whole survey)."""
     moved = [text.replace('"robot": "r1"', '"robot": "r9"') for text in lines]
     got, _ = _lenient(_log(moved))
     assert len(got.objects) == len(clean.objects) and set(got.trajectories) == {"r9"}
 
 
 def test_a_growth_model_on_a_discrete_attribute_maps_the_survey(lines, clean):
-    """Issue 12: 'need at least one array to stack' on the first empty frame."""
+    """The first empty frame maps (it was 'need at least one array to stack')."""
 
     def growth(meta: dict[str, Any]) -> None:
         meta["schema"]["attributes"]["size"]["time_model"] = {"kind": "growth", "l_max": 0.6}

@@ -1,4 +1,4 @@
-"""Issue 12, a run's outputs survive: every file is written atomically (a kill -9 leaves the
+"""A run's outputs survive: every file is written atomically (a kill -9 leaves the
 old file or the new one, whole), map.sqlite passes PRAGMA integrity_check after a kill in
 the middle of writing it, a run stopped by an error of the core still writes the map of
 what it read, one run at a time per output folder (a lock; a dead owner's lock is taken

@@ -1,4 +1,4 @@
-"""Issue 15: re-localisation in a saved map (and refusal in a wrong one), the prior's
+"""Re-localisation in a saved map (and refusal in a wrong one), the prior's
 GTSAM factor, the history tables written and read back, survey_start in the log."""
 
 from __future__ import annotations
@@ -149,7 +149,7 @@ def test_history_tables_round_trip(tmp_path):
 
 
 def test_history_rows_are_made_as_read_in_parts(monkeypatch):
-    """A whole field's rows are not held as tuples (issue 14): they are made from the
+    """A whole field's rows are not held as tuples: they are made from the
     survey's arrays each time they are read, a part at a time, the same every time."""
     from agrislam.io.sinks import history
 
@@ -293,10 +293,9 @@ def _sightings_in_and_beyond_the_area(area, poses, xy, miss_every: int):
 
 
 def test_the_detection_rate_counts_sightings_and_views_in_the_same_area():
-    """Issue 15, seed 3 day 14: plants seen beyond the shrunk area once drove p_d to its
-    clip, and a weed seen in 3 of its in-area frames was marked gone; counted frame by
-    frame in the same area, p_d is the detector's, the weed stays and a removed plant with
-    clear views is still gone."""
+    """Counted frame by frame in the same area, p_d is the detector's, a weed seen in 3 of its
+    in-area frames stays and a removed plant with clear views is still gone (plants seen beyond
+    the shrunk area once drove p_d to its clip and marked such a weed gone)."""
     from agrislam.season.changes import ViewArea, find_changes
 
     poses = np.column_stack([np.linspace(0, 30, 151), np.zeros(151), np.zeros(151)])

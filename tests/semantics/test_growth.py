@@ -164,8 +164,8 @@ def test_transition_cache_matches_direct_computation():
 
 
 def test_transition_cache_of_no_objects_is_empty():
-    """Issue 12: a growth model on a discrete attribute stopped every run with 'need at
-    least one array to stack' the first time a belief read found no objects."""
+    """A belief read that finds no objects gets no transitions (a growth model on a discrete
+    attribute once stopped every run with 'need at least one array to stack' there)."""
     cache = TransitionCache(3, GrowthModel(l_max=0.6), max_entries=8)
     assert cache(np.empty(0)).shape == (0, 3, 3)
 

@@ -1,6 +1,6 @@
-"""The arena scenario (issue 11, item 4): records that obey the log spec, odometry drifting
-by the configured amount, a camera that sees what is in range and view with the configured
-noise and outliers, clustered landmarks, determinism, and the noisy landmark attribute."""
+"""The arena scenario: records that obey the log spec, odometry drifting by the configured
+amount, a camera that sees what is in range and view with the configured noise and outliers,
+clustered landmarks, determinism, and the noisy landmark attribute."""
 
 from collections import Counter
 
@@ -14,7 +14,12 @@ from agrislam.io.sources.jsonl import read_log
 from agrislam.io.sources.sync import synchronise
 from agrislam.records import Detections, Meta, Odometry, TruthObject, TruthPose
 from agrislam.sim.arena import ArenaSimulator
-from agrislam.sim.config import ArenaConfig, ArenaOdometry, LandmarkAttribute, RangeBearingCamera
+from agrislam.sim.arena_config import (
+    ArenaConfig,
+    ArenaOdometry,
+    LandmarkAttribute,
+    RangeBearingCamera,
+)
 from agrislam.sim.landmarks import clustered_landmarks
 from agrislam.sim.odometry import drifting_odometry, increments, integrate, random_walk_variance
 from agrislam.sim.random_drive import segment_distance

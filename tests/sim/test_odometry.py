@@ -8,7 +8,7 @@ from agrislam.sim.gnss_config import DistanceDrift
 from agrislam.sim.odometry import increments, integrate, noisy_odometry, step_sigma
 from agrislam.sim.path import lawnmower
 
-NO_DRIFT = DistanceDrift(bias_length=0.0, scale_sigma=0.0)  # the bias before issue 13
+NO_DRIFT = DistanceDrift(bias_length=0.0, scale_sigma=0.0)  # a constant bias, no scale error
 
 
 def bias_only(drift: DistanceDrift) -> OdometryNoise:
@@ -85,7 +85,7 @@ def test_default_survey_drifts_about_half_a_metre():
 
 
 def test_the_heading_bias_relaxes_over_distance_and_distances_scale():
-    """Issue 13: the yaw-rate bias starts at its calibrated size and relaxes over
+    """The yaw-rate bias starts at its calibrated size and relaxes over
     drift.bias_length towards a smaller random one; distances have a scale error."""
     drift = DistanceDrift(bias_length=100.0, bias_spread=0.0, scale_sigma=0.01)
     noise = bias_only(drift)

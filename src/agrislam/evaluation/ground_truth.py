@@ -1,5 +1,5 @@
-"""The true objects of a survey as arrays: a whole field's truth is scored without a Python
-object per plant (issue 14: a TruthObject and its dict held ~0.5 KB a plant)."""
+"""The true objects of a survey as arrays, so that a whole field's truth is scored without a
+Python object per plant."""
 
 from __future__ import annotations
 

@@ -1,9 +1,7 @@
-"""Scoring a map against ground truth: which plants were mapped, missed, duplicated or
-invented, how far off they are, how right their attributes are, how clean the data
-association was, and how well the trajectory was recovered with and without optimisation.
-
-Like evo, alignment is explicit: with `align=True` the estimate is first moved onto the
-truth by the least-squares rigid 2D transform, and the metrics say so."""
+"""Scoring a map against ground truth: plants mapped, missed, duplicated or invented, their
+position and attribute errors, the data association's purity, and the trajectory with and
+without optimisation. As in evo, alignment is explicit (`align=True`: the least-squares
+rigid 2D transform first), and the metrics say so."""
 
 from __future__ import annotations
 

@@ -1,8 +1,6 @@
-"""The map frame on the globe (spec/log-format.md "meta": anchor): WGS84 latitude,
-longitude and ellipsoidal height to and from the map frame, a local east-north-up frame at
-the anchor turned `yaw_deg` from east towards north, and the anchor's UTM zone. PROJ does
-the geodesy (pyproj: geocentric, then topocentric at the anchor); nothing here is
-hand-written beyond the yaw turn."""
+"""The map frame on the globe (spec/log-format.md "meta": anchor): WGS84 to and from the map
+frame, a local east-north-up frame at the anchor turned `yaw_deg` from east towards north,
+and the anchor's UTM zone. PROJ does the geodesy; nothing is hand-written but the yaw turn."""
 
 from __future__ import annotations
 

@@ -9,7 +9,7 @@ detections: clutter, a neighbour), with the binomial likelihoods
 
 p_d the detection rate of a plant in view and e the rate of stray detections on a point.
 Used for plants gone between surveys (season/changes.py) and for the clutter of one survey
-(maintenance.py).
+(maintenance/).
 """
 
 from __future__ import annotations
@@ -35,15 +35,14 @@ class ViewArea:
         r_lo, r_hi = np.quantile(r, [0.02, 0.98])
         b_lo, b_hi = np.quantile(b, [0.02, 0.98])
         turn = margin / max(r_hi, 1e-6)
-        # shrunk where the detection rate falls (bench_season, in-view rate by range: 0.88
-        # at the near edge, 0.70 at the far one; lower at the sides): the near edge holds
-        # views of headland turns, the only ones of plants at a row's end
+        # shrunk where the detection rate falls (the far edge, the sides); the near edge is
+        # kept: it holds views of headland turns, the only ones of plants at a row's end
         return cls((r_lo, r_hi - margin), (b_lo + turn, b_hi - turn))
 
     def views(self, poses: np.ndarray, xy: np.ndarray, chunk: int = 1024) -> np.ndarray:
         """(k,) frames (poses (m, 3)) in which each map point (k, 2) was inside the area;
-        `chunk` points at a time, so that a whole field's (point, near frame) pairs are
-        never held at once (issue 14)."""
+        `chunk` points at a time, so that a whole field's (point, near frame) pairs are never held
+        at once."""
         counts = np.zeros(len(xy), dtype=np.int64)
         if not len(poses) or not len(xy):
             return counts

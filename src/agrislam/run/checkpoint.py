@@ -1,28 +1,15 @@
-"""Checkpoints of a run and `agrislam run --resume` (issue 12).
+"""Checkpoints of a run and `agrislam run --resume`: every `checkpoint.every_frames` frames
+the run's whole state (`RunState`: the world model and what the run gathered beside it) is
+saved into its `map.sqlite`, in one transaction with the map so far, so a run killed at any
+moment leaves the last checkpoint whole. `--resume` reads the input again from its start,
+skips the records the checkpoint had mapped and maps on from the saved state.
 
-Every `checkpoint.every_frames` frames the pipeline saves its whole state, the world model
-and what it gathered beside it (`RunState`), into the run's `map.sqlite`, in one SQLite
-transaction together with the map so far: a run killed at any moment leaves the last
-checkpoint whole and readable. `--resume` reads the input again from its start through the
-same source, skips the records the checkpoint had mapped (reading a record costs a few
-percent of mapping it) and maps on from the saved state.
-
-The state is saved with Python's pickle protocol, which is also how each part says what it
-holds: plain attributes (numpy arrays, dicts, dataclasses, pydantic models) are saved as they
-are; a part that holds what pickle cannot take implements `__getstate__`/`__setstate__`
-(the GTSAM back ends: `backend/incremental/backend.py`, `backend/batch.py`,
-`backend/incremental/retired.py`;
-the survey graph saves its factors as columns, for speed). New state is saved with no
-change here; `tests/test_checkpoint.py` pickles a world after a survey and fails on any part
-that cannot be.
-
-iSAM2 cannot be saved as it is (its Bayes tree is not serialisable from Python): it is
-saved as its factors and linearisation point and restored as a new iSAM2 of them, whose
-estimate differs from the old one's by what the old one had not yet re-solved (about 1e-5
-m). So a checkpoint does to the running world what a resume does: the run carries on from
-the state it just saved, read back, and a resumed run ends with exactly the map of a run
-that was never stopped (with the same `every_frames`, which is why it is part of the config
-the checkpoint must match).
+The state is a pickle: a part that holds what pickle cannot take implements
+`__getstate__`/`__setstate__` (the GTSAM back ends; tests/run/test_checkpoint.py fails on a
+part that cannot be pickled). iSAM2 is saved as its factors and linearisation point and
+restored as a new iSAM2 of them, so the run itself carries on from the state it saved, read
+back: a resumed run then ends with exactly the map of a run never stopped (with the same
+`every_frames`, which is why the checkpoint's config must match it).
 
 A checkpoint is a pickle: resume only from output folders of your own runs."""
 
@@ -197,7 +184,7 @@ class Checkpoints:
     @property
     def last(self) -> dict[str, bytes] | None:
         """The latest checkpoint's entries (None: none was written), read back from `path`
-        when asked: held in memory it was one more copy of the whole state (issue 14)."""
+        when asked, so that no second copy of the whole state is held."""
         if not self._written:
             return None
         try:

@@ -1,15 +1,11 @@
-"""Memory housekeeping kept off the step path (issue 14).
+"""Memory housekeeping kept off the step path: CPython's full collection scans every object
+it tracks, at a step no one chooses, and a large map's state is many objects.
 
-CPython's full collection scans every object it tracks, so with a large map's state it
-stops the run for as long as that takes: 30-130 ms on a 10,000-plant survey, at a step
-no one chooses. During a run, what has survived so far is moved every `every` frames to
-the collector's permanent generation (`gc.freeze`): reference counting frees it as
-always, and a full collection scans only what is newer. The run's end hands it back
-(`gc.unfreeze`), so a cycle that died frozen is collected then.
-
-At the same frames the C heap's free pages go back to the system (`release_free_heap`):
-the blocks GTSAM and numpy free between live ones otherwise stay resident, about 1.7 KB
-a plant (measured at the end of 3,000- and 12,000-plant surveys)."""
+Every `every` frames what has survived so far is moved to the collector's permanent
+generation (`gc.freeze`): reference counting frees it as always, and a full collection
+scans only what is newer; the run's end hands it back (`gc.unfreeze`), so a cycle that died
+frozen is collected then. At the same frames the C heap's free pages, freed by GTSAM and
+numpy between live blocks, go back to the system (`release_free_heap`)."""
 
 from __future__ import annotations
 

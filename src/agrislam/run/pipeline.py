@@ -104,11 +104,11 @@ class RunResult:
     records: dict[str, int] = field(default_factory=dict)
     output_errors: dict[str, str] = field(default_factory=dict)
     source_report: SourceReport | None = None
-    noise: dict[str, Any] | None = None  # the noise scales the run estimated (calibration.py)
-    existence: dict[str, Any] | None = None  # young objects confirmed, dropped (maintenance.py)
-    gnss: dict[str, int] = field(default_factory=dict)  # fixes used and rejected (issue 13)
+    noise: dict[str, Any] | None = None  # the noise scales the run estimated (noise_calibration)
+    existence: dict[str, Any] | None = None  # young objects confirmed, dropped (maintenance/)
+    gnss: dict[str, int] = field(default_factory=dict)  # fixes used and rejected
     checkpoints: dict[str, Any] | None = None  # resumed at which record, checkpoints taken
-    season: dict[str, Any] | None = None  # a survey that continued a saved map (issue 15)
+    season: dict[str, Any] | None = None  # a survey that continued a saved map
 
     @property
     def usable(self) -> bool:
@@ -315,9 +315,9 @@ def _snapshot(world: WorldModel, result: RunResult) -> MapSnapshot | None:
 
 
 def _add_surface(result: RunResult, config: SemanticsConfig) -> None:
-    """The map's interest surface, from its objects' positions and interest alone: made
-    once the world's state may be released, the grids reuse its memory (issue 14); an
-    issue, and a map without it, if it cannot be made."""
+    """The map's interest surface, from its objects' positions and interest alone: made once
+    the world's state may be released, so its grids reuse that memory; an issue, and a map
+    without it, if it cannot be made."""
     snapshot = result.snapshot
     if snapshot is None or len(snapshot.objects.ids) == 0:
         return
@@ -406,9 +406,9 @@ GEO_FILES = {
 def geo_writers(
     snapshot: MapSnapshot, cfg: OutputsConfig
 ) -> list[tuple[str, Callable[[Path], Any]]]:
-    """The georeferenced files `outputs.formats` names (issue 13); by default GeoJSON and
-    GeoPackage when the map has an anchor. A named format the map cannot take (no anchor,
-    no weeds) is an output error of the run."""
+    """The georeferenced files `outputs.formats` names; by default GeoJSON and GeoPackage when
+    the map has an anchor. A named format the map cannot take (no anchor, no weeds) is an
+    output error of the run."""
     if cfg.formats is None and snapshot.anchor is None:
         return []
     write = {

@@ -1,15 +1,12 @@
-"""A survey that continues a saved map (issue 15), as the pipeline runs it: the records
-held back until the robots are re-localised in the saved map (never merged into a wrong
-place), then the survey mapped on the saved plants; at the end what changed.
+"""A survey that continues a saved map, as the pipeline runs it: the records held back until
+the robots are re-localised in the saved map (never merged into a wrong place), then mapped
+on the saved plants; at the end, what changed.
 
-Every robot of the survey registers its own first frames (robots of one survey need not
-start together): the records are released when the first robot has its fix and every
-other robot heard of by then has its own or has given up (it then starts as any robot
-without a start pose: a weak prior, placed by the plants it shares).
-
-`SeasonRun(prior, config)` is handed to `pipeline.run_survey`; `gate` wraps the pose-synced
-records, `finish` classifies the saved plants after the world's last step.
-"""
+Every robot registers its own first frames: the records are released when the first robot
+has its fix and every other robot heard of by then has its own or has given up (it then
+starts with a weak prior, placed by the plants it shares). `SeasonRun(prior, config)` is
+handed to `pipeline.run_survey`: `gate` wraps the pose-synced records, `finish` classifies
+the saved plants after the world's last step."""
 
 from __future__ import annotations
 

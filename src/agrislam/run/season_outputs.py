@@ -1,6 +1,6 @@
-"""What a survey adds to the season's history (issue 15): `map.sqlite`'s history tables
-(the earlier surveys' rows carried over, this survey's appended), `changes.csv` and the
-season figure. Used by every run, so a first survey starts the history."""
+"""What a survey adds to the season's history: `map.sqlite`'s history tables (the earlier
+surveys' rows carried over, this survey's appended), `changes.csv` and the season figure.
+Used by every run, so a first survey starts the history."""
 
 from __future__ import annotations
 
@@ -112,8 +112,8 @@ def season_outputs(
 
 def load_season(path: str | Path, config: AgrislamConfig) -> SeasonRun:
     """A saved map.sqlite as the prior of the next survey, with its history. A map without
-    history (written before issue 15) has no absolute time: its beliefs are taken as of
-    the new survey's start."""
+    history tables (an older one) has no absolute time: its beliefs are taken as of the new
+    survey's start."""
     history = read_history(path)
     t_abs = history.t_abs()
     prior = PriorMap.from_snapshot(

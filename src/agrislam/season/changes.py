@@ -1,19 +1,16 @@
-"""What changed since the saved map (issue 15): saved plants seen again keep their id;
-saved plants not seen where the camera clearly looked are gone (weeded, died, eaten), with
-a belief of being gone; plants the survey started are new.
+"""What changed since the saved map: saved plants seen again keep their id; saved plants not
+seen where the camera clearly looked are gone (weeded, died, eaten), with a belief of being
+gone; plants the survey started are new.
 
-Where the camera looked is learned from the survey itself: the robot-frame area its
-detections filled (range and bearing quantiles), shrunk by a margin at its far edge and
-sides. A saved plant inside it at k frames and detected in n of them is gone with the
+Where the camera looked is learned from the survey's own detections (geometry/view_area.py).
+A saved plant inside that area at k frames and detected in n of them is gone with the
 binomial posterior
 
     P(gone) = p0 e^n (1 - e)^(k - n) / (p0 e^n (1 - e)^(k - n) + (1 - p0) p_d^n (1 - p_d)^(k - n)),
 
-p_d the share of in-view frames in which the plants clearly there (n >= 2) were detected
-(sightings and views both counted in the area, frame by frame),
-e the rate of stray detections associated to a plant that is not there (config): a
-removed plant that caught one detection of a neighbour or of clutter is still gone.
-"""
+p_d the share of in-view frames in which the plants clearly there (n >= 2) were detected, e
+the rate of stray detections on a plant that is not there (config): a removed plant that
+caught one detection of a neighbour or of clutter is still gone."""
 
 from __future__ import annotations
 

@@ -1,8 +1,7 @@
-"""The back end of a survey that continues a saved map: saved plants wait outside the
-graph, answered from their saved position and covariance, until the survey sees one; it
-then enters the graph with a prior factor of its saved covariance (a real GTSAM
-PriorFactorPoint2) and is mapped on like any plant. A 10,000-plant map so loads in no
-time and costs the solver only the plants the robot meets again."""
+"""The back end of a survey that continues a saved map: saved plants wait outside the graph,
+answered from their saved position and covariance, until the survey sees one; it then
+enters the graph with a prior of its saved covariance (a GTSAM PriorFactorPoint2), so a
+whole field's map loads at once and the solver holds only the plants met again."""
 
 from __future__ import annotations
 

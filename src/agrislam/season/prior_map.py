@@ -1,8 +1,6 @@
-"""A saved map as the prior of the next survey (issue 15): every plant's position with its
-covariance, its beliefs and the absolute time they refer to. The world carries the beliefs
-to the new survey's time through the growth model (sec. 2.5.2, App. B) when it reads them:
-they enter its belief table stamped with the saved survey's time in the new survey's clock.
-"""
+"""A saved map as the prior of the next survey: every plant's position with its covariance,
+its beliefs and the absolute time they refer to, which the world carries to the new
+survey's time through the growth model (sec. 2.5.2, App. B) when it reads them."""
 
 from __future__ import annotations
 

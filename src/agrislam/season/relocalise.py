@@ -1,16 +1,13 @@
-"""Where the robot is in a saved map, from its first frames (issue 15).
+"""Where the robot is in a saved map, from its first frames: their detections, placed by dead
+reckoning and clustered into plants, are registered to the saved plants by pairwise-distance
+consistency (a RANSAC over SE(2) whose samples are pairs of the same distance).
 
-The first frames' detections, placed by dead reckoning, are clustered into plants; pairs
-of them with a distinctive distance vote for SE(2) transforms through every saved pair of
-the same distance (pairwise-distance consistency, a RANSAC over SE(2) whose samples are
-the consistent pairs); each hypothesis is refined on its matches and scored by a
-Gaussian kernel of the residuals, with the attributes' beliefs as a compatibility check.
-A fix is given only when the best hypothesis fits as well as a right one would (a chi^2
-test of its residuals against their predicted spread: the saved plants' covariances and
-the first frames' own detection scatter), explains most of the plants, and the
-second-best *distinct* one scores clearly less: crop rows are periodic, a shift by one
-plant or one row is the trap, and a wrong fix merges a survey into the wrong place.
-"""
+Each hypothesis is refined on its matches and scored by a Gaussian kernel of the residuals,
+the attributes' beliefs a compatibility check. A fix is given only when the best hypothesis
+fits as well as a right one would (a chi^2 test against the predicted spread), explains most
+plants, and the second-best distinct one scores clearly less: crop rows are periodic, a
+shift by one plant or one row is the trap, and a wrong fix merges a survey into the wrong
+place."""
 
 from __future__ import annotations
 

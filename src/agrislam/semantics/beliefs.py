@@ -1,14 +1,10 @@
-"""The belief table: the semantic state of every object of the map, as a struct of arrays
+"""The belief table: the semantic state of every object of the map as a struct of arrays
 (DESIGN.md "State layout"), with the measurement update (sec. 2.5), the lazy time update
 (sec. 2.5.2, App. B), the fusion of merged objects and the interest heuristic (sec. 2.7).
 
-Row i is object i. Each discrete attribute is an (n_objects, n_values) probability array,
-each continuous one a mean and a variance array. A belief is stored at its own time
-(`belief_time`); reading it at a later t returns it brought forward through the
-attribute's time model without storing that; an update brings it to t and stores the
-result. So a step costs nothing for objects that are not touched, and reading never
-changes what a later update gives.
-"""
+A belief is stored at its own time (`belief_time`): reading it later brings it forward
+through the attribute's time model without storing that, and an update stores it, so a
+step costs nothing for untouched objects and reading never changes a later update."""
 
 from __future__ import annotations
 

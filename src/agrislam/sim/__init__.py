@@ -4,4 +4,4 @@ same records as a recorded survey log. `Simulator(SimConfig()).records()` is the
 records it.
 
 `ArenaSimulator(ArenaConfig()).records()` (arena.py) is the other scenario: robots driving
-random paths among point landmarks in a small indoor arena (issue 11, item 4)."""
+random paths among point landmarks in a small indoor arena."""

@@ -1,9 +1,10 @@
-"""The arena scenario of issue 11, item 4, as a source: several robots driving random paths
-among point landmarks (some in tight clusters) in a small indoor arena, with fast drifting
-wheel odometry and a range-bearing camera, shaped like the UTIAS multi-robot dataset
-(MRCLAM). `ArenaSimulator(ArenaConfig()).records()` yields the survey log's records, as
-`Simulator(...).records()` does for a field: one meta, the landmarks' truth, then every
-robot's odometry, frames and true poses, interleaved in time order."""
+"""The arena scenario as a source: several robots driving random paths among point landmarks
+(some in tight clusters) in a small indoor arena, with fast drifting wheel odometry and a
+range-bearing camera, shaped like the UTIAS multi-robot dataset (MRCLAM).
+
+`ArenaSimulator(ArenaConfig()).records()` yields a survey log's records, as `Simulator` does
+for a field: one meta, the landmarks' truth, then every robot's odometry, frames and true
+poses, interleaved in time order."""
 
 from __future__ import annotations
 
@@ -25,7 +26,7 @@ from agrislam.records import (
     TruthObject,
     TruthPose,
 )
-from agrislam.sim.config import ArenaConfig
+from agrislam.sim.arena_config import ArenaConfig
 from agrislam.sim.landmarks import Landmarks, clustered_landmarks
 from agrislam.sim.odometry import OdometryTrack, drifting_odometry
 from agrislam.sim.path import frame_times

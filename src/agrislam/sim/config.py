@@ -1,10 +1,6 @@
 """Configuration of the field simulator: field layout, survey path, odometry noise, detector
-model and growth. Every noise and probability is a value here, with the reasoning behind
-its default in a comment; the defaults reproduce the paper's Gazebo setup (sec. 3.1.1):
-a 400-plant field, rows 1 m apart, plants 0.4-0.5 m apart, 7 colours x 3 sizes.
-
-`ArenaConfig` at the end configures the other scenario, `sim/arena.py`: robots driving
-random paths among point landmarks in a small indoor arena (issue 11, item 4)."""
+model and growth. Every noise and probability is a value here, with the reasoning behind its
+default; the defaults reproduce the paper's Gazebo setup (sec. 3.1.1)."""
 
 from __future__ import annotations
 
@@ -13,6 +9,7 @@ from typing import Literal
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from agrislam.config import FieldSchema
+from agrislam.sim.arena_config import ArenaConfig  # noqa: F401 (re-exported for imports outside sim)
 from agrislam.sim.gnss_config import DistanceDrift, GnssSimConfig
 
 
@@ -172,10 +169,8 @@ class OdometryNoise(_Strict):
     sigma_y_per_m: float = Field(
         0.01, ge=0.0, description="std of the sideways error per metre driven"
     )
-    # Calibration (60 seeds, default 400-plant field, 184 m): a yaw-rate bias (random sign)
-    # does most of the drift, relaxing over drift.bias_length (issue 13); the white heading
-    # noise adds the spread. Dead-reckoning RMS position error: median 0.502 m, mean
-    # 0.483 m, against the paper's 0.503 m (sec. 3.1.2); 10,000 plants (4.1 km): 30-61 m.
+    # a yaw-rate bias (random sign) does most of the drift, relaxing over drift.bias_length;
+    # the white heading noise adds the spread
     sigma_theta_per_m: float = Field(
         0.002, ge=0.0, description="rad of heading noise per metre driven"
     )
@@ -196,7 +191,7 @@ class OdometryNoise(_Strict):
     heading_bias_walk: float = Field(
         2.0e-6, ge=0.0, description="rad/s per sqrt(s): the bias wanders slowly"
     )
-    drift: DistanceDrift = Field(default_factory=DistanceDrift)  # large fields (issue 13)
+    drift: DistanceDrift = Field(default_factory=DistanceDrift)  # over long surveys
     report_scale: float = Field(
         1.0,
         gt=0.0,
@@ -261,12 +256,22 @@ class DetectorConfig(_Strict):
         description="false detections of nothing per frame, Poisson: with the "
         "Gazebo model's precision of 0.83 (App. A) most false positives are doubles, below",
     )
-    # issue 12's hostile scenarios: clutter as a share of the frame's plant detections
-    # (Poisson, on top of clutter_rate), and gross range errors: a share of the plant
-    # detections moved along their ray by outlier_range m either way, reported as good ones
-    clutter_fraction: float = Field(0.0, ge=0.0)
-    outlier_fraction: float = Field(0.0, ge=0.0, le=1.0)
-    outlier_range: tuple[float, float] = (1.0, 4.0)
+    clutter_fraction: float = Field(
+        0.0,
+        ge=0.0,
+        description="more false detections of nothing, as a share of the frame's plant "
+        "detections (Poisson, on top of clutter_rate): a hostile scenario",
+    )
+    outlier_fraction: float = Field(
+        0.0,
+        ge=0.0,
+        le=1.0,
+        description="share of plant detections with a gross range error, reported as good "
+        "ones: a hostile scenario",
+    )
+    outlier_range: tuple[float, float] = Field(
+        (1.0, 4.0), description="m, size of a gross range error, uniform, either way along the ray"
+    )
     double_detection_p: float = Field(
         0.03,
         ge=0.0,
@@ -289,7 +294,9 @@ class DetectorConfig(_Strict):
         description="chance a discrete measurement is right (near camera, at max_range), "
         "linear in range in between; attributes not named use default_accuracy",
     )
-    default_accuracy: tuple[float, float] = (0.9, 0.75)
+    default_accuracy: tuple[float, float] = Field(
+        (0.9, 0.75), description="accuracy (near camera, at max_range) of attributes not named"
+    )
     ordinal_attributes: list[str] = Field(
         default_factory=lambda: ["size"],
         description="wrong values of these fall on the "
@@ -338,6 +345,9 @@ class GrowthConfig(_Strict):
 
 
 class AnchorConfig(_Strict):
+    """Where the simulated field lies, written as the log's anchor: the WGS84 position of the
+    map origin, the map x axis `yaw_deg` from east to north."""
+
     lat: float = 51.4488
     lon: float = 5.4905
     h: float = 20.0
@@ -356,7 +366,7 @@ class SimConfig(_Strict):
     detector: DetectorConfig = Field(default_factory=DetectorConfig)
     growth: GrowthConfig = Field(default_factory=GrowthConfig)
     anchor: AnchorConfig | None = Field(default_factory=AnchorConfig)
-    gnss: GnssSimConfig | None = Field(None, description="a GNSS receiver (issue 13)")
+    gnss: GnssSimConfig | None = Field(None, description="a GNSS receiver; None: no fixes")
     announce_row_angle: bool = Field(
         False, description="put the row angle in the meta field prior (the paper estimates it)"
     )
@@ -367,234 +377,3 @@ class SimConfig(_Strict):
         if isinstance(self.schema_, str):
             return FieldSchema.preset(self.schema_)
         return self.schema_
-
-
-# ------------------------------------------------------------------------------ the arena
-
-
-class ArenaLayout(_Strict):
-    """A small indoor arena with point landmarks, some in tight clusters. Its shape follows the
-    UTIAS multi-robot dataset (MRCLAM): a 15 m x 8 m room, 15 landmark tubes."""
-
-    size: tuple[float, float] = Field(
-        (15.0, 8.0),
-        description="m, x by y, centred on the map origin: MRCLAM's robots drive to random "
-        "waypoints in a 15 m x 8 m room",
-    )
-    single_landmarks: int = Field(
-        10, ge=0, description="landmarks standing alone, at least `separation` from any other"
-    )
-    clusters: list[int] = Field(
-        default_factory=lambda: [3, 2, 2],
-        description="sizes of the landmark clusters: a triple and two pairs, so 7 of the 17 "
-        "landmarks have a neighbour within 0.2 m, the case the issue's real data has",
-    )
-    cluster_spacing: tuple[float, float] = Field(
-        (0.15, 0.2),
-        description="m, distance of each clustered landmark to its nearest neighbour, uniform: "
-        "about the range sigma, so one object can easily swallow two landmarks",
-    )
-    separation: float = Field(
-        1.0,
-        gt=0.0,
-        description="m, least distance between landmarks of different clusters (or singles): "
-        "5 range sigmas, so only the clusters are hard to tell apart",
-    )
-    wall_margin: float = Field(
-        0.8, ge=0.0, description="m landmarks stand inside the walls, room to drive round them"
-    )
-
-    @model_validator(mode="after")
-    def _check(self) -> ArenaLayout:
-        lo, hi = self.cluster_spacing
-        if not 0.0 < lo <= hi:
-            raise ValueError(f"cluster_spacing: need 0 < low <= high, got ({lo}, {hi})")
-        if any(n < 2 for n in self.clusters):
-            raise ValueError(f"a cluster has at least 2 landmarks, got {self.clusters}")
-        if self.single_landmarks + sum(self.clusters) == 0:
-            raise ValueError("the arena needs at least one landmark")
-        if min(self.size) <= 2 * self.wall_margin:
-            raise ValueError(f"wall_margin {self.wall_margin} leaves no room in {self.size}")
-        return self
-
-
-class ArenaDriving(_Strict):
-    """How the robots move: each drives straight legs to random waypoints, its gentle corners
-    rounded into arcs, its sharp ones turned on the spot (a differential drive, like
-    MRCLAM's iRobot Creates), at a speed drawn per segment."""
-
-    n_robots: int = Field(5, ge=1, description="MRCLAM's team of five")
-    duration_s: float = Field(900.0, gt=0.0, description="s, 15 minutes (issue 11, item 4)")
-    speed: tuple[float, float] = Field(
-        (0.1, 0.3),
-        description="m/s, drawn uniformly per path segment (the issue: about 0.1-0.3 m/s); "
-        "a turn on the spot goes at speed / turn_radius rad/s, 0.3-1 rad/s",
-    )
-    turn_radius: float = Field(
-        0.3, gt=0.0, description="m, radius of a rounded corner (a small robot turns tightly)"
-    )
-    spin_turn_deg: float = Field(
-        120.0,
-        ge=0.0,
-        le=180.0,
-        description="corners turning more than this are turned on the spot, the others are "
-        "driven as arcs: between random waypoints about one corner in three is a turn in place",
-    )
-    min_leg: float = Field(
-        1.0, gt=0.0, description="m, shortest leg between waypoints (nearer ones are redrawn)"
-    )
-    wall_margin: float = Field(
-        0.4, ge=0.0, description="m the waypoints (and so the legs) keep from the walls"
-    )
-    landmark_clearance: float = Field(
-        0.4,
-        ge=0.0,
-        description="m every leg keeps from every landmark: the robots drive round them, and "
-        "the camera's 0.3 m minimum range never hides the landmark in front",
-    )
-    start_poses: Literal["all", "first"] = Field(
-        "all",
-        description="which robots' start poses the meta gives: 'all' (motion capture knows "
-        "them, as in MRCLAM) or 'first' (the others must be placed from shared landmarks)",
-    )
-    start_sigma: tuple[float, float, float] = Field(
-        (0.01, 0.01, 0.005),
-        description="std of a start-pose prior in meta (m, m, rad): motion capture at the start",
-    )
-
-    @model_validator(mode="after")
-    def _check(self) -> ArenaDriving:
-        lo, hi = self.speed
-        if not 0.0 < lo <= hi:
-            raise ValueError(f"speed: need 0 < low <= high, got ({lo}, {hi})")
-        return self
-
-
-class ArenaOdometry(_Strict):
-    """Wheel odometry at tens of Hz. Its white noise is a random walk: each variance grows
-    with the metres driven, the radians turned and the seconds passed, so the drift does not
-    depend on the rate (a std per step in proportion to the step, as `OdometryNoise` has,
-    would shrink the drift as the rate grows). On top, each robot has its own distance scale
-    error and heading bias per metre (wheels of slightly different size), which the reported
-    covariance leaves out, as real odometry does.
-
-    Calibration (20 seeds x 5 robots, 5-minute drives of about 47 m): the dead-reckoned
-    position is off by 1.00 m RMS after 5 minutes (median 0.73 m, 10-90 % 0.29-1.55 m; the
-    white noise alone gives 0.65 m), the heading by 0.24 rad RMS, of which the reported
-    covariance admits about 0.03 rad."""
-
-    rate_hz: float = Field(
-        50.0, gt=0.0, description="records per second: tens of Hz (MRCLAM logs at 67 Hz)"
-    )
-    sigma_x_per_sqrt_m: float = Field(
-        0.02, ge=0.0, description="m per sqrt(m) driven, along the motion: wheel slip"
-    )
-    sigma_y_per_sqrt_m: float = Field(
-        0.01, ge=0.0, description="m per sqrt(m) driven, across the motion"
-    )
-    sigma_theta_per_sqrt_m: float = Field(
-        0.01, ge=0.0, description="rad per sqrt(m) driven: uneven floor"
-    )
-    sigma_theta_per_sqrt_rad: float = Field(
-        0.02, ge=0.0, description="rad per sqrt(rad) turned: the wheels skid when turning"
-    )
-    sigma_per_sqrt_s: tuple[float, float, float] = Field(
-        (1e-3, 1e-3, 1e-3),
-        description="(m, m, rad) per sqrt(s): a floor, so standing still or turning in place "
-        "is not perfectly certain (a zero variance would be singular in the graph)",
-    )
-    heading_bias_per_m: float = Field(
-        4e-3,
-        ge=0.0,
-        description="rad per m driven, size of each robot's heading bias, its sign drawn per "
-        "robot (one wheel a little larger): 0.19 rad over 5 minutes' 47 m, which takes the "
-        "drift from 0.65 m (white noise alone) to about 1 m",
-    )
-    scale_bias: float = Field(
-        0.01, ge=0.0, description="std of each robot's relative distance error (wheel radius)"
-    )
-    report_sigma_factor: tuple[float, float, float] = Field(
-        (1.0, 1.0, 0.25),
-        description="reported std = this x the white noise std actually added, per x, y, "
-        "heading: the heading 4 times too confident, as real drivers report it (with the "
-        "unreported bias, more than that); the mapper has to estimate the scales itself",
-    )
-
-    @model_validator(mode="after")
-    def _check(self) -> ArenaOdometry:
-        if min(self.report_sigma_factor) <= 0.0 or min(self.sigma_per_sqrt_s) <= 0.0:
-            raise ValueError("report_sigma_factor and sigma_per_sqrt_s must be positive")
-        return self
-
-
-class RangeBearingCamera(_Strict):
-    """A camera aligned with the robot body frame that reads range and bearing off each
-    landmark in view (as MRCLAM's barcode reader does). Only range and field of view hide a
-    landmark; a few ranges are gross outliers."""
-
-    frame_rate_hz: float = Field(
-        3.0,
-        gt=0.0,
-        description="frames per second, unsynchronised with the odometry (a random phase per "
-        "robot): a few Hz; 5 robots x 15 min at 3 Hz see each landmark over a thousand times",
-    )
-    fov_deg: float = Field(60.0, gt=0.0, le=360.0, description="horizontal field of view")
-    min_range: float = Field(0.3, ge=0.0, description="m; nearer landmarks are out of focus")
-    max_range: float = Field(5.0, gt=0.0, description="m; farther barcodes cannot be read")
-    sigma_range: float = Field(
-        0.13, ge=0.0, description="m, range noise std, reported as it is (issue 11)"
-    )
-    sigma_bearing: float = Field(
-        0.015, ge=0.0, description="rad, bearing noise std, reported as it is (issue 11)"
-    )
-    outlier_rate: float = Field(
-        0.02,
-        ge=0.0,
-        le=1.0,
-        description="share of detections whose range is a gross error, uniform over "
-        "[min_range, max_range], still reported with sigma_range (issue 11: about 2 %)",
-    )
-    empty_frames: bool = Field(
-        False,
-        description="also write frames that see nothing; a converted real log lists "
-        "measurements only, so by default a frame without a landmark in view is not written",
-    )
-
-    @model_validator(mode="after")
-    def _check(self) -> RangeBearingCamera:
-        if self.min_range >= self.max_range:
-            raise ValueError(f"min_range {self.min_range} must be below max_range")
-        return self
-
-
-class LandmarkAttribute(_Strict):
-    """An optional noisy discrete attribute per landmark: the identity read off its barcode,
-    sometimes wrong. The meta then carries a schema with this one attribute, its values the
-    landmark ids."""
-
-    enabled: bool = Field(False, description="off: pure geometric mapping, no schema")
-    name: str = Field("landmark", description="the attribute's name in the schema")
-    error_rate: float = Field(
-        0.1,
-        ge=0.0,
-        le=1.0,
-        description="chance a read reports a wrong id, uniform over the other landmarks",
-    )
-    p: float = Field(
-        0.9,
-        ge=0.0,
-        le=1.0,
-        description="the p each read reports: 1 - error_rate by default, a calibrated reader",
-    )
-
-
-class ArenaConfig(_Strict):
-    """Root of the arena scenario; `ArenaSimulator(ArenaConfig())` is issue 11's 15-minute,
-    5-robot, 17-landmark run."""
-
-    seed: int = Field(1, description="everything random follows from it")
-    arena: ArenaLayout = Field(default_factory=ArenaLayout)
-    driving: ArenaDriving = Field(default_factory=ArenaDriving)
-    odometry: ArenaOdometry = Field(default_factory=ArenaOdometry)
-    camera: RangeBearingCamera = Field(default_factory=RangeBearingCamera)
-    attribute: LandmarkAttribute = Field(default_factory=LandmarkAttribute)

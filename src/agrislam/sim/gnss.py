@@ -1,4 +1,4 @@
-"""A simulated GNSS receiver (issue 13): fixes of the antenna at the robot's true pose,
+"""A simulated GNSS receiver: fixes of the antenna at the robot's true pose,
 with fix types in runs (RTK fixed, float, ...), outages of minutes, and multipath jumps of
 metres that the receiver does not admit in its covariance."""
 

@@ -1,6 +1,6 @@
-"""Configuration of what the simulator adds for georeferenced surveys (issue 13): a GNSS
-receiver with fix types, outages and multipath jumps, and odometry drift that grows with
-the distance driven, not with the time of the paper's 400-plant survey."""
+"""Configuration of what the simulator adds for georeferenced surveys: a GNSS receiver with
+fix types, outages and multipath jumps, and odometry drift over distance: the yaw-rate bias
+calibrated on the 400-plant survey relaxes over a long one."""
 
 from __future__ import annotations
 
@@ -16,8 +16,7 @@ class DistanceDrift(_Strict):
     `heading_bias` (random sign) and relaxes towards a smaller random one over
     `bias_length` metres (an Ornstein-Uhlenbeck process in distance), so a long survey's
     heading error grows like a random walk instead of without bound; and a distance scale
-    error per robot (wheel radius). `bias_length = 0`: the bias of the 400-plant
-    calibration stays constant (the model before issue 13)."""
+    error per robot (wheel radius). `bias_length = 0`: the calibrated bias stays constant."""
 
     bias_length: float = Field(
         600.0,

@@ -8,7 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial.distance import cdist
 
-from agrislam.sim.config import ArenaLayout
+from agrislam.sim.arena_config import ArenaLayout
 
 MAX_TRIES = 10_000  # draws per group before the layout is declared too crowded
 

@@ -9,7 +9,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from agrislam.geometry.se2 import wrap_angle
-from agrislam.sim.config import ArenaOdometry, OdometryNoise
+from agrislam.sim.arena_config import ArenaOdometry
+from agrislam.sim.config import OdometryNoise
 
 
 @dataclass(frozen=True, slots=True)

@@ -8,7 +8,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from agrislam.sim.config import ArenaDriving
+from agrislam.sim.arena_config import ArenaDriving
 from agrislam.sim.path import SurveyPath, rounded_polyline
 
 CANDIDATES = 64  # waypoints drawn at once; the first acceptable one is taken

@@ -9,7 +9,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from agrislam.geometry.se2 import wrap_angle
-from agrislam.sim.config import LandmarkAttribute, RangeBearingCamera
+from agrislam.sim.arena_config import LandmarkAttribute, RangeBearingCamera
 
 MIN_REPORTED_RANGE = 0.01  # m; the noise must not make a range negative (the log forbids it)
 

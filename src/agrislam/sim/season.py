@@ -1,4 +1,4 @@
-"""A season as separate survey logs (issue 15): the field of `Simulator` on each survey
+"""A season as separate survey logs: the field of `Simulator` on each survey
 day, grown (App. B), with some plants removed and weeds emerged since the previous day;
 each day's robot starts somewhere along its route, at a place the log does not give."""
 

@@ -1,4 +1,4 @@
-"""The farm's GIS formats (issue 13), each read back: the GeoPackage and the shapefile with
+"""The farm's GIS formats, each read back: the GeoPackage and the shapefile with
 pyogrio (every plant within 1 mm), the ISOXML TaskData with the isoxml library (its
 treated grid cells are exactly the weeds' cells)."""
 

@@ -1,4 +1,4 @@
-"""Issue 12 for ROS bags: a truncated MCAP file is read up to the cut and says how much,
+"""Hostile input in ROS bags: a truncated MCAP file is read up to the cut and says how much,
 a message with a wild stamp costs that message, a frame of too many detections is refused
 whole, a bad meta record stops the read, and values out of bounds never become records."""
 

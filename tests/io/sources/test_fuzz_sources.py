@@ -1,4 +1,4 @@
-"""Issue 12's rule for hostile input, as properties: whatever is done to one field or one
+"""The rule for hostile input, as properties: whatever is done to one field or one
 line of a valid log, or whatever bytes a file holds, a reader gives a clear error
 (`LogError` / `SourceError` in strict mode, `ValueError` for a bag that cannot be opened)
 or skips and counts (lenient mode); never another exception. And the pipeline on a

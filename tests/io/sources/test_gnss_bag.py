@@ -1,4 +1,4 @@
-"""sensor_msgs/NavSatFix in ROS bags (issue 13): a simulated survey with GNSS written by the
+"""sensor_msgs/NavSatFix in ROS bags: a simulated survey with GNSS written by the
 survey bag sink reads back with the same fixes (type, covariance, antenna from tf_static);
 a NavSatFix's status and covariance give the fix type; a bad fix is an issue, not a stop."""
 

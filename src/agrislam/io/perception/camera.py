@@ -1,10 +1,8 @@
-"""Pinhole camera model from CameraInfo-style intrinsics, and the camera-to-base transform.
+"""Pinhole camera model from CameraInfo-style intrinsics, and the camera-to-base transform
+that App. A's position estimate uses.
 
 Camera points are in the ROS optical frame (z forward along the optical axis, x right,
-y down); base points in the robot base frame (x forward, y left, z up). App. A: the
-position estimate uses "the intrinsic camera matrix and camera position with respect to
-the body-fixed frame of the robot".
-"""
+y down); base points in the robot base frame (x forward, y left, z up)."""
 
 from __future__ import annotations
 

@@ -1,10 +1,6 @@
-"""The RGB-D front end: one frame of 2D detections plus aligned depth -> records.Detections.
-
-Per detection (sec. 2.3, App. A): the mask (or the central part of the box when there
-is no mask), optionally intersected with green pixels, gives a robust position from the
-depth; objects beyond the range cut-off are dropped; a length comes from the box when
-configured (sec. 3.1.2); a combined label is split by the label map.
-"""
+"""The RGB-D front end: one frame of 2D detections plus aligned depth -> `records.Detections`
+(sec. 2.3, App. A): a robust position from the depth in the mask (or the box's centre), a
+range cut-off, a length from the box (sec. 3.1.2) and the combined label split."""
 
 from __future__ import annotations
 

@@ -1,12 +1,6 @@
-"""Combined detector labels split into attribute values (App. A).
-
-The paper's YOLOv8n was trained on combined classes such as ``plant_small_healthy``
-because one box with several tags trained badly (App. A). A label map turns such a
-class into one measurement per attribute, each with the detector's score as its
-probability p (Assumption 1). Labels come from an explicit mapping (the config's
-``label_map``) or, when a schema is known, by splitting the label at a separator and
-finding each part among the values of exactly one discrete attribute.
-"""
+"""Combined detector labels split into attribute values (App. A: the paper's detector was
+trained on combined classes such as ``plant_small_healthy``): one measurement per attribute
+with the detector's score as its p, from the config's ``label_map`` or the schema's values."""
 
 from __future__ import annotations
 
@@ -80,11 +74,8 @@ class LabelMap:
         return {name: DiscreteMeasurement(value, p) for name, value in self.split(label).items()}
 
     def apply(self, detection: Detection) -> Detection:
-        """The detection with its combined label replaced by attribute measurements.
-
-        Attributes the detection already carries explicitly are kept over those from
-        the label (a dedicated measurement beats a combined class).
-        """
+        """The detection with its combined label replaced by attribute measurements; an attribute
+        it carries already keeps its own (a dedicated measurement beats a combined class)."""
         if detection.label is None:
             return detection
         if detection.label_p is None:

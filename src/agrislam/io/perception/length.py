@@ -1,9 +1,5 @@
-"""Continuous plant length from a detection box and depth (sec. 3.1.2).
-
-"This length was estimated using the bounding boxes in the YOLOv8n detections, in
-combination with the distance of the plants to the robot, and the variance of the
-length measurement was scaled quadratically with this distance" (sec. 3.1.2).
-"""
+"""Continuous plant length from a detection box and depth (sec. 3.1.2): the box's extent at
+the plant's depth, with a variance that grows with the distance squared."""
 
 from __future__ import annotations
 

@@ -1,12 +1,6 @@
-"""Object position from the depth pixels inside a detection's mask (sec. 2.3, App. A).
-
-"For each segmented object, the depth array from the camera is used to calculate an
-object position by averaging the depth points in the object image mask" (sec. 2.3).
-Here the average is robust: invalid depths (0, NaN, inf, out of range) are ignored,
-depths far from the median (background seen through the mask) are dropped, and the
-remaining back-projected points are averaged. The covariance is larger along the
-viewing ray than across it (sec. 2.3, 2.6).
-"""
+"""Object position from the depth pixels inside a detection's mask (sec. 2.3, App. A): a
+robust average of the back-projected points (invalid depths ignored, depths far from the
+median dropped as background), with a covariance larger along the viewing ray than across."""
 
 from __future__ import annotations
 

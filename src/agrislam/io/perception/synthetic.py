@@ -1,9 +1,6 @@
-"""Ray-cast RGB-D frames of simple scenes: a ground plane and plant-like shapes.
-
-For testing the front end against known object positions, and for simulators that
-want RGB-D frames instead of ready-made detections. Depth is along the optical axis
-(what RGB-D cameras report), the instance image marks object k with k + 1.
-"""
+"""Ray-cast RGB-D frames of simple scenes (a ground plane and plant-like shapes), to test the
+front end against known object positions. Depth is along the optical axis, as RGB-D cameras
+report it; the instance image marks object k with k + 1."""
 
 from __future__ import annotations
 

@@ -1,15 +1,10 @@
-"""YOLOv8-seg on onnxruntime: the detector the paper used (sec. 2.3, App. A), for the
-user's own exported model (``yolo export model=best.pt format=onnx``).
+"""YOLOv8-seg on onnxruntime (an optional extra): the detector the paper used (sec. 2.3,
+App. A), for the user's own exported model (``yolo export model=best.pt format=onnx``).
 
-Model layout (ultralytics export): input ``images`` [1, 3, H, W] (RGB in [0, 1],
-letterboxed with grey 114); ``output0`` [1, 4 + nc + 32, N]: per candidate box centre,
-size (input pixels), nc class probabilities and 32 mask coefficients; ``output1``
-[1, 32, H/4, W/4]: mask prototypes. onnxruntime is an optional extra
-(``pip install agrislam[onnx]``); the decoding below needs only numpy.
-
-Boxes handed out are in pixel-centre coordinates of the original image (pixel (u, v)
-has its centre at (u, v), as CameraInfo assumes).
-"""
+Model layout (ultralytics export): input ``images`` [1, 3, H, W] (RGB in [0, 1], letterboxed
+with grey 114); ``output0`` [1, 4 + nc + 32, N]: per candidate box centre, size (input
+pixels), nc class probabilities and 32 mask coefficients; ``output1`` [1, 32, H/4, W/4]:
+mask prototypes. Boxes handed out are in pixel-centre coordinates of the original image."""
 
 from __future__ import annotations
 

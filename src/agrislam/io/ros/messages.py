@@ -1,19 +1,12 @@
-"""ROS message definitions the project reads and writes, registered with rosbags.
+"""ROS message definitions agrislam reads and writes, registered with rosbags. vision_msgs is
+in no rosbags type store, so its .msg text is here, in the three layouts recorded bags have
+(a bag that embeds its definitions is read with its own):
 
-vision_msgs is not in any rosbags type store, so its definitions are written here as
-.msg text, in the three layouts found in recorded bags:
-
-- ``humble``: vision_msgs 4.x (ROS 2 Humble and later): ``results[].hypothesis.class_id``
-  and ``.score``, 2D box centre ``bbox.center.position.x``, a ``string id`` per detection;
-- ``foxy``: vision_msgs 2.x/3.x (ROS 2 Foxy, Galactic): ``results[].id`` (string) and
-  ``results[].score``, 2D box centre ``bbox.center.x`` (geometry_msgs/Pose2D), plus
-  ``is_tracking``/``tracking_id`` and the source image or cloud;
-- ``noetic``: vision_msgs 0.0.x (ROS 1 Noetic): as ``foxy`` but ``results[].id`` is an
-  ``int64`` and there are no tracking fields.
-
-A bag written by rosbag2 (version 8+) or ROS 1 carries its own definitions, which the
-reader prefers; these are for writing bags and for bags without embedded definitions.
-"""
+- ``humble`` (vision_msgs 4.x, ROS 2 Humble on): ``results[].hypothesis.class_id`` and
+  ``.score``, box centre ``bbox.center.position.x``, a ``string id`` per detection;
+- ``foxy`` (2.x/3.x, ROS 2 Foxy, Galactic): ``results[].id`` (string) and ``.score``, box
+  centre ``bbox.center.x`` (Pose2D), tracking fields and the source image or cloud;
+- ``noetic`` (0.0.x, ROS 1 Noetic): as ``foxy``, but ``id`` an ``int64``, no tracking."""
 
 from __future__ import annotations
 
@@ -231,14 +224,9 @@ def image_array(msg: Any) -> np.ndarray:
 def open_ros2_writer(
     path: str | Path, storage: Literal["mcap", "sqlite3"] = "mcap", compress: bool = False
 ) -> Iterator[Writer]:
-    """A rosbags rosbag2 Writer (version 9) for `path`.
-
-    A path ending in ``.mcap`` becomes a bare MCAP file (written as a rosbag2 folder
-    next to it, whose single MCAP file is then moved into place); any other path is a
-    rosbag2 folder with the given storage plugin. `compress`: zstd-compressed MCAP chunks
-    (storage compression, which ROS 2 and Foxglove read). Existing paths are not
-    overwritten.
-    """
+    """A rosbags rosbag2 Writer (version 9) for `path`, which must not exist: a path ending in
+    ``.mcap`` becomes a bare MCAP file (written as a rosbag2 folder, its one file then moved
+    into place), any other a rosbag2 folder of `storage`; `compress`: zstd-compressed chunks."""
     path = Path(path)
     if path.exists():
         raise FileExistsError(f"{path} exists already, not overwriting")

@@ -1,4 +1,4 @@
-"""sensor_msgs/NavSatFix as agrislam reads and writes it (issue 13).
+"""sensor_msgs/NavSatFix as agrislam reads and writes it.
 
 NavSatStatus says no fix (-1), fix (0), SBAS (1) or GBAS (2) augmentation; it has no word
 for RTK. Receivers' drivers (ublox, septentrio, novatel) report RTK as a GBAS fix, fixed

@@ -1,10 +1,6 @@
 """Outputs of a run (DESIGN.md "Outputs of a run"): each sink takes a `MapSnapshot` (or the
-survey's records) and writes one file; none of them is imported by the core.
-
-A sink module never imports another sink module: what several of them read sits in the
-helper modules `columns` (object and trajectory tables), `readouts` (belief read-outs:
-most probable value, sureness, colours) and `scene` (how a plant is drawn in 3D), which
-write nothing."""
+survey's records) and writes one file; none of them is imported by the core. Sinks never
+import each other: what several read sits in the helpers `columns`, `readouts` and `scene`."""
 
 from agrislam.io.sinks.csv import write_objects_csv, write_trajectory_csv
 from agrislam.io.sinks.geojson import map_to_lonlat, write_geojson

@@ -1,7 +1,6 @@
-"""The object and trajectory tables of a map snapshot, column name -> array: what
+"""The object and trajectory tables of a map snapshot, column name -> whole numpy array: what
 `objects.csv` and `trajectory.csv` hold and the GeoJSON sink reads. A helper of the sinks,
-not a sink: it writes nothing. Columns are whole numpy arrays, so 100,000 objects cost
-little."""
+not a sink: it writes nothing."""
 
 from __future__ import annotations
 

@@ -1,9 +1,6 @@
-"""`objects.csv` and `trajectory.csv` (DESIGN.md "Outputs of a run"): the map as plain tables.
-
-The tables come from `sinks.columns` as whole numpy arrays, are formatted a column at a time
-and written by the standard library's csv writer (RFC 4180 quoting), so 100,000 objects
-take about a second.
-"""
+"""`objects.csv` and `trajectory.csv` (DESIGN.md "Outputs of a run"): the map as plain tables,
+from `sinks.columns`' arrays, formatted a chunk of rows at a time and written by the standard
+library's csv writer (RFC 4180 quoting)."""
 
 from __future__ import annotations
 

@@ -1,14 +1,11 @@
 """The map for Foxglove: an MCAP file of Foxglove's own schemas (foxglove-sdk, an optional
-extra: ``pip install agrislam[foxglove]``), which its 3D panel shows without any ROS
-message definitions.
+extra), which its 3D panel shows without any ROS message definitions.
 
 Topics (frame ``map``): ``/agrislam/plants`` (SceneUpdate: an entity per object, id =
-object id, a sphere coloured by the chosen attribute as in `scene.plant_style`, its
-2-sigma position ellipse, and every attribute's distribution as entity metadata, which
-Foxglove lists when a plant is clicked), ``/agrislam/rows`` (SceneUpdate, the row lines),
-``/agrislam/interest`` (Grid of the interest surface, sec. 2.7, value field ``interest``),
-``/agrislam/trajectory/<robot>`` and ``/agrislam/dead_reckoning/<robot>`` (PosesInFrame).
-"""
+object id, a sphere coloured as in `scene.plant_style`, its 2-sigma position ellipse, every
+attribute's distribution as entity metadata), ``/agrislam/rows`` (SceneUpdate, the row
+lines), ``/agrislam/interest`` (Grid of the interest surface, sec. 2.7, field ``interest``),
+``/agrislam/trajectory/<robot>`` and ``/agrislam/dead_reckoning/<robot>`` (PosesInFrame)."""
 
 from __future__ import annotations
 
@@ -144,7 +141,7 @@ def scene_update_bytes(entities: Iterable[Any]) -> bytearray:
 
 def poses_in_frame_bytes(trajectory: Trajectory, ts: Any) -> bytearray:
     """The protobuf of a trajectory's PosesInFrame, encoded pose by pose: a whole field's
-    drive is hundreds of thousands of poses (issue 14)."""
+    drive is too many poses to hold as messages at once."""
     m = _sdk()[2]
     poses = (
         _pose(m, p[0], p[1], 0.0, float(p[2])) for p in np.asarray(trajectory.poses, dtype=float)
@@ -170,8 +167,8 @@ def write_foxglove_mcap(
     entities_per_message: int = ENTITIES_PER_MESSAGE,
 ) -> Path:
     """Write the map as an MCAP file of Foxglove schemas (see the module docstring). The
-    plants go out `entities_per_message` to a SceneUpdate, at one time: one message of a
-    whole field's entities would be held at once (issue 14)."""
+    plants go out `entities_per_message` to a SceneUpdate, at one time, so that a whole field's
+    entities are never held at once."""
     foxglove, channels, m = _sdk()
     path = Path(path)
     t = snapshot_time(snapshot) if stamp is None else stamp

@@ -1,6 +1,6 @@
-"""The map as GIS layers (issue 13): plants, tracks and rows as geometries in WGS84 or the
-anchor's UTM zone with their attribute columns, and the weeds a prescription treats. A
-helper of the GeoPackage, shapefile and ISOXML sinks, not a sink: it writes nothing."""
+"""The map as GIS layers: plants, tracks and rows as geometries in WGS84 or the anchor's UTM
+zone with their attribute columns, and the weeds a prescription treats. A helper of the
+GeoPackage, shapefile and ISOXML sinks, not a sink: it writes nothing."""
 
 from __future__ import annotations
 

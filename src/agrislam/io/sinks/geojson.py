@@ -1,10 +1,6 @@
 """`map.geojson` (RFC 7946): the plants as WGS84 points and the trajectories as lines, for
-QGIS, farm-management software or a web map.
-
-The map frame is a local east-north frame at the anchor, its x axis turned `yaw_deg`
-from east towards north (spec/log-format.md "meta"); PROJ turns map metres into degrees
-(geometry/geodesy.py).
-"""
+QGIS, farm-management software or a web map. PROJ turns the map frame's metres (east-north
+at the anchor, turned `yaw_deg`) into degrees (geometry/geodesy.py)."""
 
 from __future__ import annotations
 

@@ -1,10 +1,9 @@
-"""The season's history in `map.sqlite` (issue 15): one row per survey (`surveys`) and one
-row per plant per survey (`plant_history`: position, beliefs, interest, what happened to
-it). Tables of their own, written into the same atomic file after `sqlite.save_map`:
+"""The season's history in `map.sqlite`: one row per survey (`surveys`) and one row per plant
+per survey (`plant_history`: position, beliefs, interest, what happened to it), tables of
+their own written into the same atomic file after `sqlite.save_map`. For example:
 
     SELECT survey, status, x, y, json_extract(beliefs, '$.length[0]') AS length
-    FROM plant_history WHERE plant_id = 17 ORDER BY survey;
-"""
+    FROM plant_history WHERE plant_id = 17 ORDER BY survey;"""
 
 from __future__ import annotations
 
@@ -66,10 +65,9 @@ class History:
 
 @dataclass(frozen=True)
 class PlantRows:
-    """History rows of one survey, made from its arrays as they are read: a whole field's
-    rows as tuples and JSON (about 1 KB a plant) never sit in memory at once (issue 14).
-    Iterable again and again; `beliefs` name -> (k, n) (discrete probabilities or
-    continuous (mean, var)), stored as JSON per plant."""
+    """History rows of one survey, made from its arrays as they are read (iterable again and
+    again), so a whole field's rows never sit in memory at once as tuples and JSON. `beliefs`:
+    name -> (k, n) discrete probabilities or continuous (mean, var), stored as JSON per plant."""
 
     survey: int
     ids: np.ndarray
@@ -162,7 +160,7 @@ def write_history(path: str | Path, history: History) -> None:
 
 
 def read_history(path: str | Path) -> History:
-    """The history of a map file; empty for a map written before issue 15."""
+    """The history of a map file; empty for a map without history tables (an older one)."""
     with closing(sqlite3.connect(f"{Path(path).resolve().as_uri()}?mode=ro", uri=True)) as db:
         tables = {
             name for (name,) in db.execute("SELECT name FROM sqlite_master WHERE type='table'")

@@ -1,5 +1,5 @@
 """`taskdata.zip`: an ISO 11783-10 (ISOXML v4) TaskData with the weeds as a treatment
-prescription that ISOBUS terminals read (issue 13), written with the `isoxml` library.
+prescription that ISOBUS terminals read, written with the `isoxml` library.
 
 One task over a partfield (the plants' hull): a grid of type 1 in WGS84 whose cells of
 `outputs.cell_m` hold treatment zone 1 (spray `outputs.rate_l_ha`) where a weed lies and

@@ -1,7 +1,6 @@
-"""Belief read-outs that every map sink shows the same way: a discrete attribute's value
-names and checked probabilities, its most probable value, how sure a belief is (0 for one
-that knows nothing, 1 for a certain one), a continuous attribute's scale, and the colour
-and opacity they are drawn with. A helper of the sinks, not a sink: it writes nothing."""
+"""Belief read-outs every map sink shows the same way: a discrete attribute's value names
+and checked probabilities, its most probable value, how sure a belief is (0: knows nothing,
+1: certain), a continuous attribute's scale, and the colours and opacity they are drawn with."""
 
 from __future__ import annotations
 

@@ -1,10 +1,7 @@
 """`report.png`: one page a farmer can read. The map coloured by attribute (opacity = how
-sure the map is), the interest surface (where a second look pays off), the trajectories
-(truth, dead reckoning, optimised) and where each step's time went.
-
-Drawn with matplotlib's object API on the Agg canvas (no pyplot, no display needed);
-plants are rasterised scatter points, so 100,000 of them draw in seconds.
-"""
+sure the map is), the interest surface (where a second look pays off), the trajectories and
+where each step's time went; drawn with matplotlib's object API on the Agg canvas, plants as
+rasterised scatter points so that a whole field draws quickly."""
 
 from __future__ import annotations
 
@@ -34,7 +31,7 @@ from agrislam.io.sinks.readouts import (
 )
 from agrislam.snapshot import MapSnapshot, Trajectory
 
-REAL_TIME_BUDGET_MS = 1000.0  # one frame per second (issue 5, "real time")
+REAL_TIME_BUDGET_MS = 1000.0  # real time: one frame per second (sec. 3.1.3)
 PANEL_WIDTH_IN = 5.0  # one field map's axes
 LEGEND_WIDTH_IN = 1.7  # its legend or colour bar, to the right
 STEP_PANEL_HEIGHT_IN = 3.4
@@ -105,9 +102,8 @@ def _layout(
     title_lines: list[str],
 ) -> tuple[Figure, list[Axes], Axes | None]:
     """Field panels on a grid sized to the field's shape (3 across for a square field, 1 for
-    a long strip), each with room for its legend on the right; the step-time panel fills
-    the last row's free cells, or a row of its own. Placed by hand: constrained layout
-    would double the drawing time."""
+    a long strip), each with room for its legend on the right; the step-time panel fills the
+    last row's free cells, or a row of its own. Placed by hand: constrained layout is slow."""
     width, height = extent[1] - extent[0], extent[3] - extent[2]
     ratio = width / max(height, 1e-9)
     ncols = min(n_field, 3 if ratio < 1.6 else 2 if ratio < 3.5 else 1)
@@ -407,11 +403,10 @@ def _colorbar(ax: Axes, mappable: Any, label: str) -> None:
 
 
 def coarsened(values: np.ndarray, most: int = DISPLAY_CELLS) -> tuple[np.ndarray, int]:
-    """A grid's means over square blocks of `block` cells a side (returned with it), at
-    most `most` blocks a side: a whole field's interest surface holds millions of cells,
-    a panel shows about a thousand pixels a side, and drawing every cell cost memory in
-    proportion to the field (issue 14). The blocks of the last row and column reach past
-    the grid, holding its edge values."""
+    """A grid's means over square blocks of `block` cells a side (returned with it), at most
+    `most` blocks a side: a panel shows about a thousand pixels a side, and a whole field's
+    surface of millions of cells drawn cell by cell costs memory in proportion to the field.
+    The blocks of the last row and column reach past the grid, holding its edge values."""
     block = -(-max(values.shape) // most)
     if block <= 1:
         return values, 1

@@ -1,16 +1,11 @@
 """The map for ROS tools: an MCAP file (a ROS 2 recording, opens in Foxglove, RViz via
-``ros2 bag play``) with the plants as ``visualization_msgs/MarkerArray`` and every robot's
-trajectory as ``nav_msgs/Path``.
-
-Plants are coloured by the most probable value of one attribute (the report's colours),
-opacity and size show how sure the map is of it: 0.15 opacity and half size for a belief
-that knows nothing, solid and full size for a certain one.
+``ros2 bag play``) with the plants as ``visualization_msgs/MarkerArray`` coloured as in
+`scene.plant_style`, and every robot's trajectory as ``nav_msgs/Path``.
 
 Topics (frame ``map``): ``/agrislam/plants`` (namespaces ``plants``: one sphere per
 object, id = object id; ``uncertainty``: the 2-sigma position ellipse; ``labels``: text;
 ``rows``: the fitted row lines), ``/agrislam/trajectory/<robot>`` (optimised) and
-``/agrislam/dead_reckoning/<robot>``.
-"""
+``/agrislam/dead_reckoning/<robot>``."""
 
 from __future__ import annotations
 
@@ -34,7 +29,7 @@ from agrislam.snapshot import MapSnapshot, Trajectory
 PLANTS_TOPIC = "/agrislam/plants"
 MARKER = {"SPHERE": 2, "CYLINDER": 3, "LINE_LIST": 5, "TEXT_VIEW_FACING": 9}
 ACTION = {"ADD": 0, "DELETEALL": 3}
-MARKERS_PER_MESSAGE = 20_000  # about 7 MB of CDR
+MARKERS_PER_MESSAGE = 20_000  # a MarkerArray's markers at most: its CDR is held whole
 
 
 class _MarkerBuilder:
@@ -201,11 +196,9 @@ def write_map_mcap(
     markers_per_message: int = MARKERS_PER_MESSAGE,
 ) -> Path:
     """Write the map as a bare MCAP file (ROS 2, CDR): plants as MarkerArrays coloured by
-    `attribute` (default: the first discrete one), trajectories as nav_msgs/Path.
-
-    The markers go out `markers_per_message` to a MarkerArray, in order and at one stamp
-    (only the first clears an older map): a whole field's markers in one message would
-    hold its ~1 KB a plant of CDR at once (issue 14)."""
+    `attribute` (default: the first discrete one), trajectories as nav_msgs/Path. The markers
+    go out `markers_per_message` to a MarkerArray, in order and at one stamp (only the first
+    clears an older map), so that a whole field's CDR is never held at once."""
     path = Path(path)
     if overwrite:
         path.unlink(missing_ok=True)

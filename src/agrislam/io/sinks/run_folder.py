@@ -43,7 +43,7 @@ OUTPUT_NAMES = (
     "map.mcap",
     "map_foxglove.mcap",
     "report.png",
-    "changes.csv",  # a survey that continued a saved map (issue 15)
+    "changes.csv",  # a survey that continued a saved map
     "season.png",
     "metrics.json",
 )

@@ -1,4 +1,4 @@
-"""The season figure (issue 15): the change map of the latest survey (plants kept, new,
+"""The season figure: the change map of the latest survey (plants kept, new,
 gone, and how much each grew) and growth curves of a sample of plants over the surveys."""
 
 from __future__ import annotations

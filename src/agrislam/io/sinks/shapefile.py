@@ -1,6 +1,6 @@
 """`prescription_shp.zip`: the weeds as a spot-spraying prescription in a zipped ESRI
 shapefile (points in WGS84 with the rate in l/ha), the way farm-management software
-imports one (issue 13)."""
+imports one."""
 
 from __future__ import annotations
 

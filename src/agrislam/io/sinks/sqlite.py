@@ -1,10 +1,6 @@
-"""`map.sqlite`: the persistent map store a later survey resumes from.
-
-Plain tables a farmer can query with any SQLite tool (one row per object, one row per
-object, attribute and value for discrete beliefs, one row per pose), and `load_map`
-gives back exactly the `MapSnapshot` that `save_map` was given. Saving is atomic: the
-file is written beside the target in one transaction and renamed over it.
-"""
+"""`map.sqlite`: the persistent map store a later survey resumes from, as plain tables a
+farmer can query with any SQLite tool; `load_map` gives back exactly the `MapSnapshot` that
+`save_map` was given, and saving is atomic (sinks.atomic)."""
 
 from __future__ import annotations
 

@@ -1,13 +1,10 @@
 """Inputs of a survey, one shape for all: `open_source(path_or_uri, config)` picks the reader
-by the path's suffix or the URI's scheme and returns a `Source`, whose `records()` the
-pipeline runs and whose `report` says what was read.
+by the path's suffix or the URI's scheme and returns a `Source`. Readers are imported when
+first opened, so reading a log never loads rosbags.
 
 - ``survey.jsonl``, ``survey.jsonl.gz``: `sources.jsonl`, the survey log (spec/log-format.md);
-- a rosbag2 folder, ``.mcap``, ``.db3``, a ROS 1 ``.bag``: `sources.rosbag` (its
-  Detection2D frames through the RGB-D front end: `sources.rgbd`);
-- ``sim:?plants=400&seed=1&preset=colour_size``: `sources.simulated`, the field simulator.
-
-Readers are imported when first opened, so reading a log never loads rosbags."""
+- a rosbag2 folder, ``.mcap``, ``.db3``, a ROS 1 ``.bag``: `sources.rosbag`;
+- ``sim:?plants=400&seed=1&preset=colour_size``: `sources.simulated`, the field simulator."""
 
 from __future__ import annotations
 
@@ -42,16 +39,12 @@ def open_source(
     bag: BagSourceConfig | Mapping[str, Any] | None = None,
     sim: SimConfig | Mapping[str, Any] | None = None,
 ) -> Source:
-    """The source of a survey log, a ROS bag or a ``sim:`` URI.
-
-    `config`: the run's configuration (a bag's schema, label map and sensor defaults; the
-    bounds of every value, `sensor.limits`).
-    `strict`: a survey log stops at its first bad line (`SourceError`) instead of skipping
-    it; a bag reports bad input and reads on either way. `bag`: the bag's topics (a
-    config file's ``bag:`` section); `sim`: the simulator's settings under the URI's
-    parameters (its ``sim:`` section). Each applies to its own kind of source only.
-    ValueError for an input of no supported kind or a bag that cannot be opened (its
-    message says why and what to do), FileNotFoundError for a missing path."""
+    """The source of a survey log, a ROS bag or a ``sim:`` URI. `config`: the run's
+    configuration (schema, label map, sensor defaults and bounds). `strict`: a survey log stops
+    at its first bad line (`SourceError`); a bag reports bad input and reads on either way.
+    `bag`, `sim`: a config file's ``bag:`` and ``sim:`` sections, each for its own kind only.
+    ValueError for an input of no supported kind or a bag that cannot be opened (saying why
+    and what to do), FileNotFoundError for a missing path."""
     if not isinstance(path_or_uri, Path) and (match := _SCHEME.match(path_or_uri)):
         if match["scheme"].lower() != "sim":
             raise ValueError(

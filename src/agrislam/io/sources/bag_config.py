@@ -43,9 +43,19 @@ class BagSourceConfig(BaseModel):
     camera_to_base: tuple[float, float, float, float, float, float, float] | None = Field(
         None, description="x y z qx qy qz qw of frames tf does not connect to the base"
     )
-    odom_covariance: Literal["increment", "absolute", "ignore"] = "increment"
-    odometry_form: Literal["pose", "delta"] = "pose"
-    detection_geometry: Literal["xy", "range_bearing"] = "xy"
+    odom_covariance: Literal["increment", "absolute", "ignore"] = Field(
+        "increment",
+        description="the x/y/yaw block of an Odometry's pose covariance: that of the motion "
+        "since the previous message ('increment', drivers with a fixed covariance), of the "
+        "pose itself, differenced between messages ('absolute', as an EKF publishes), or not "
+        "read ('ignore')",
+    )
+    odometry_form: Literal["pose", "delta"] = Field(
+        "pose", description="odometry records as odometry-frame poses or as increments"
+    )
+    detection_geometry: Literal["xy", "range_bearing"] = Field(
+        "xy", description="detections as position + covariance or as range and bearing"
+    )
     class_names: dict[str, str] = Field(
         default_factory=dict, description="numeric class id -> class name"
     )

@@ -1,11 +1,10 @@
-"""Opening a ROS bag, with a message a person can act on when it cannot be read, and
-the readable part of a truncated MCAP file salvaged.
+"""Opening a ROS bag, with a message a person can act on when it cannot be read, and the
+readable part of a truncated MCAP file salvaged.
 
-A bag cut off while it was recorded (a full disk, a killed recorder, an interrupted copy)
-has lost its MCAP summary and footer, and rosbags refuses it. Its data section is still
-a sequence of whole records up to the cut: `salvaged_mcap` copies those into a
-temporary file, closed by a footer that says "no summary", which rosbags then reads by
-scanning. The report says how much of the file that was."""
+A bag cut off while it was recorded has lost its MCAP summary and footer, and rosbags
+refuses it; its data section is still whole records up to the cut. `salvaged_mcap` copies
+those into a temporary file closed by a footer that says "no summary", which rosbags reads
+by scanning."""
 
 from __future__ import annotations
 

@@ -3,12 +3,8 @@ record with a wild stamp costs that record only.
 
 A record far ahead of its robot's recent stamps (more than `time_jump_s`, or
 `time_jump_factor` times the robot's median interval, whichever is more) is held back
-until the robot's next record shows what it was: if that one continues from it, the
-clock jumped (a pause in the recording) and both are released; if it continues from the
-old clock, the held record was a time spike and is rejected alone. A held record that no
-later record of its robot confirms (the end of the log) is rejected too. Without this, a
-spike (one odometry record at t = 1e9 early in a log) made every later record of its
-robot "time backwards"."""
+until the robot's next record shows what it was: a jump of the clock (both are released)
+or a spike (the held record is rejected alone, as is one no later record confirms)."""
 
 from __future__ import annotations
 

@@ -1,10 +1,6 @@
-"""The survey log, JSON Lines version 1 (shared/spec/log-format.md, with this project's
-additions in docs/log-format.md), read as a source: a streaming reader that checks every
-line (`sinks.jsonl` writes the log). It never loads the file whole; a bad line either stops
-it (strict) with the line number, the reason and the field, or is skipped and counted
-(lenient). Every record also passes `sources.validate` (physical bounds, covariances) and
-its robot's clock (`sources.clock`: time backwards, time spikes). A bad meta line stops
-the read in either mode: the meta line is the survey's contract."""
+"""The survey log, JSON Lines version 1 (shared/spec/log-format.md, this project's additions
+in docs/log-format.md), read as a source: a streaming reader that checks every line, stops
+at a bad one (strict) or skips and counts it (lenient); a bad meta line always stops it."""
 
 from __future__ import annotations
 
@@ -362,7 +358,7 @@ def _open(path: Path, mode: str) -> IO[bytes]:
 
 def _lines(f: IO[bytes], limit: int) -> Iterator[tuple[int, bytes | str | None]]:
     """(number, line) of each line; None for a line longer than `limit` bytes, which is
-    skipped to its end unread (a 1 GB line costs no memory)."""
+    skipped to its end unread (a line of any length costs no memory)."""
     n = 0
     while True:
         raw = f.readline(limit + 1)
@@ -535,8 +531,8 @@ def read_log(
 
 
 def _survey_start(obj: dict) -> float | None:
-    """`survey_start` (reader 1.2, issue 15): the ISO 8601 date-time with a time zone of the
-    survey's t = 0, as Unix seconds; absent: t counts from any epoch the log likes."""
+    """`survey_start` (reader 1.2): the ISO 8601 date-time with a time zone of the survey's
+    t = 0, as Unix seconds; absent: t counts from any epoch the log likes."""
     text = obj.get("survey_start")
     if text is None:
         return None

@@ -1,19 +1,11 @@
-"""A robot's motion kept whole when a source rejects one of its odometry records.
+"""A robot's motion kept whole when a source rejects one of its odometry records: with
+`delta` records, dropping one would shift every later pose of the robot by its motion.
 
-With `pose` records a rejected record costs nothing: the next pose gives the motion since
-the last accepted one. With `delta` records each record carries its own piece of the
-motion, and dropping it would shift every later pose of the robot by that piece (one bad
-string in one delta misplaced every plant seen after it). So:
-
-- a delta record rejected for its time only (a time spike, time going backwards) still
-  holds a good motion: it is composed into the robot's next accepted delta record, with
-  its covariance (exact: the motion between the two accepted records is the same);
-- a delta record whose motion cannot be read at all is bridged by constant velocity: the
-  next accepted delta is extended back over the lost interval (its twist scaled by the
-  ratio of the intervals) and its covariance widened by half the bridged motion, so the
-  map's landmarks, not the guess, decide where the robot was.
-
-The run's report still lists the rejected line; this only limits what it costs."""
+A delta rejected for its time only still holds a good motion: it is composed into the
+robot's next accepted delta, with its covariance. A delta whose motion cannot be read is
+bridged by constant velocity: the next accepted delta is extended back over the lost
+interval and its covariance widened by half the bridged motion, so the map's landmarks, not
+the guess, decide where the robot was. (A rejected `pose` record costs nothing.)"""
 
 from __future__ import annotations
 

@@ -1,8 +1,7 @@
-"""Detection2DArray frames of a bag through the RGB-D front end: each frame waits for the
-depth image of its camera (within the sync tolerance), then is projected with the camera's
-CameraInfo, the instance image (pixel value k marks detection k - 1) and the colour image
-of the same instant. Cameras are paired with detection topics by the longest common
-prefix of the topic names."""
+"""Detection2DArray frames of a bag through the RGB-D front end: each frame waits for its
+camera's depth image (within the sync tolerance), then is projected with the camera's
+CameraInfo, instance and colour images of the same instant (cameras paired with detection
+topics by the longest common prefix of their names)."""
 
 from __future__ import annotations
 

@@ -1,37 +1,21 @@
-"""ROS bags as a source: a rosbag2 folder (sqlite3 or MCAP), a bare .mcap file, or a ROS 1
-.bag read as agrislam records (rosbags; no ROS installation needed). `sinks.rosbag` writes
-a survey as a bag this reads back.
+"""ROS bags as a source: a rosbag2 folder (sqlite3 or MCAP), a bare .mcap file or a ROS 1
+.bag read as agrislam records (rosbags; no ROS installation needed), as `sinks.rosbag`
+writes them. Bad input never stops the reader: each problem is an issue in its `BagReport`.
 
-What the reader takes (topics named in `BagSourceConfig` or found by type):
+What it takes (topics named in `BagSourceConfig` or found by type):
 
-- ``nav_msgs/Odometry``: one robot per topic (its namespace, ``/r2/odom`` -> ``r2``, else
-  the configured robot name). The pose becomes ``Odometry.pose`` (or ``delta``); the
-  x/y/yaw block of the pose covariance is the covariance of the motion since the previous
-  message (``odom_covariance="increment"``, what drivers with a fixed covariance publish),
-  or the difference of consecutive absolute covariances (``"absolute"``, as an EKF
-  publishes), or ignored (``"ignore"``). ``covariance[0] == -1`` means unknown.
-- ``tf`` / ``tf_static``: the camera-to-base transform (or ``camera_to_base`` in the config).
-- ``vision_msgs/Detection3DArray`` in the vision_msgs 4.x or the older Foxy/Noetic layout:
-  the box centre (or, with an empty box, the hypothesis pose) in the header frame,
-  transformed to the base frame; the x/y block of the hypothesis pose covariance when
-  present; hypotheses as below.
-- ``vision_msgs/Detection2DArray`` plus an aligned depth ``sensor_msgs/Image`` and its
-  ``CameraInfo`` (and optionally an instance image whose pixel value k marks detection
-  k - 1 of the array with the same stamp): projected by the RGB-D front end (`sources.rgbd`).
-- ``/agrislam/meta`` and ``/agrislam/truth`` (``std_msgs/String``): a survey log line each
-  (shared/spec/log-format.md), as ``write_survey_bag`` records meta and ground truth.
+- ``nav_msgs/Odometry``: one robot per topic (its namespace, ``/r2/odom`` -> ``r2``), the
+  x/y/yaw covariance block read as `odom_covariance` says (``covariance[0] == -1``: unknown);
+- ``tf`` / ``tf_static``: the camera-to-base transform (or the config's ``camera_to_base``);
+- ``vision_msgs/Detection3DArray`` (4.x or Foxy/Noetic layout): the box centre (or, with an
+  empty box, the hypothesis pose) in the base frame, hypotheses read by `sources.hypotheses`
+  (``attr=value`` measurements or a combined label), ``Detection3D.id`` as ``truth_id``;
+- ``vision_msgs/Detection2DArray`` with aligned depth, ``CameraInfo`` and optionally an
+  instance image: through the RGB-D front end (`sources.rgbd`);
+- ``sensor_msgs/NavSatFix``: GNSS fixes (`ros.navsat`);
+- ``/agrislam/meta`` and ``/agrislam/truth`` (``std_msgs/String``): a survey log line each.
 
-Hypotheses: a ``class_id`` of the form ``attr=value`` is a discrete measurement of that
-attribute with p = score; ``attr=value;var=v`` a continuous one; any other ``class_id`` is
-a combined detector label (the best-scoring one wins) that the label map splits. Numeric
-ids (Noetic ``int64 id``) are named through ``class_names``. ``Detection3D.id`` carries
-the record's ``truth_id``.
-
-Bad input never stops the reader: every problem becomes a `BagIssue` naming the topic and
-stamp in the source's `BagReport`, and the rest of the bag is read. Records are yielded in
-time order (header stamps; meta first), after the bag has been read through once: records
-are small, images are turned into detections as they stream past.
-"""
+Records come in time order (header stamps; meta first), after one pass through the bag."""
 
 from __future__ import annotations
 
@@ -517,14 +501,10 @@ class _BagReader:
 
 
 class BagSource:
-    """A ROS bag as a source: its records in time order, and the report of what the latest
-    pass found.
-
-    `path`: a rosbag2 folder (sqlite3 or MCAP storage), a bare ``.mcap`` file, or a ROS 1
-    ``.bag``. `config` gives the schema, label map and sensor defaults; `bag` the topics.
-    Each `records()` reads the bag on its first ``next()``; its report is complete once the
-    iterator is.
-    """
+    """A ROS bag (a rosbag2 folder, a bare ``.mcap`` file or a ROS 1 ``.bag``) as a source:
+    its records in time order, and the report of the latest pass. `config` gives the schema,
+    label map and sensor defaults, `bag` the topics; each `records()` reads the bag on its
+    first ``next()``, and its report is complete once the iterator is."""
 
     def __init__(
         self,

@@ -1,10 +1,8 @@
-"""The field simulator as a source, opened by a ``sim:`` URI whose query sets the survey:
+"""The field simulator as a source, opened by a ``sim:`` URI whose query (plants, seed,
+preset, robots) goes on top of a `SimConfig` (a config file's ``sim:`` section):
 
     sim:                                        the paper's 400-plant survey (seed 1)
-    sim:?plants=2000&seed=4&preset=crops_weeds  any of plants, seed, preset, robots
-
-Every other setting comes from a `SimConfig` (a config file's ``sim:`` section); the
-URI's parameters go on top of it. The records are `Simulator(config).records()`."""
+    sim:?plants=2000&seed=4&preset=crops_weeds"""
 
 from __future__ import annotations
 

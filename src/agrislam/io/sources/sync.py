@@ -1,10 +1,7 @@
-"""Robot poses at detection times: a stream adapter over any record iterator.
-
-After it, every Detections record is preceded by an Odometry record of its robot at exactly
-its time, and every Odometry record carries a `delta`. A frame between two odometry records
-gets an interpolated increment (constant velocity along the SE(2) geodesic), the covariance
-of the interval split in proportion to time, so the pieces compose back to the original
-motion and their covariances sum back to the original one."""
+"""Robot poses at detection times: a stream adapter after which every Detections record
+is preceded by an Odometry record of its robot at its time, as a `delta`. A frame between
+two odometry records splits their motion along the SE(2) geodesic and their covariance in
+proportion to time, so the pieces compose back to the original motion and covariance."""
 
 from __future__ import annotations
 

@@ -1,12 +1,8 @@
 """The checks every source makes on a record before it reaches the map: numbers finite and
-within sane physical bounds (`config.InputLimits`), covariances symmetric positive definite
+within physical bounds (`config.InputLimits`), covariances symmetric positive definite
 within a driver's rounding, frames of a bounded size, a field prior that describes a field.
-
-A source parses its own format into records (`sources.jsonl`, `sources.rosbag`) and passes
-each through `check_record`; a record that fails raises `BadRecordError` with a reason of
-`REASONS` and a message naming the field, which the source turns into a bad line (strict:
-stop, lenient: skip and count) or a bag issue. What passes can no longer break the core:
-the world model trusts its records."""
+A record that fails raises `BadRecordError` (a reason of `REASONS`, a message naming the
+field), which its source turns into a bad line or a bag issue: the core trusts its records."""
 
 from __future__ import annotations
 
