@@ -372,7 +372,7 @@ def test_a_loop_closure_in_a_large_graph_does_not_stall_the_step_with_a_batch(mo
 def test_dogleg_batch_reaches_the_lm_solution():
     lm = two_copies("batch", merged=False)
     dogleg = make_backend(SlamConfig(backend="batch", batch_optimizer="dogleg"), RowsConfig())
-    dogleg.load(lm.graph, {k: lm._estimate(k) + 0.01 for k in lm.graph.all_keys()})
+    dogleg.load(lm.graph, {k: lm.estimate(k) + 0.01 for k in lm.graph.all_keys()})
     dogleg.update()
     np.testing.assert_allclose(
         dogleg.object_positions(np.array([0])), lm.object_positions(np.array([0])), atol=1e-5
@@ -479,8 +479,8 @@ def test_a_node_an_update_leaves_indeterminate_gets_a_weak_prior_and_mapping_goe
     assert g.issues["object held by a weak prior: indeterminate in an iSAM2 update"] == 1
     # the map where it was (the bearing pulls the last pose a little)
     np.testing.assert_allclose(g.object_positions(g.object_ids()), before, atol=5e-3)
-    x, y, theta = g._estimate(pose)  # the lone object turned onto its bearing, held near
-    lone_xy = g._estimate(lone)
+    x, y, theta = g.estimate(pose)  # the lone object turned onto its bearing, held near
+    lone_xy = g.estimate(lone)
     assert math.atan2(lone_xy[1] - y, lone_xy[0] - x) - theta == pytest.approx(0.3, abs=0.02)
     g.add_odometry("r", 99.0, np.array([0.4, 0.0, 0.0]), np.diag([1e-3, 1e-3, 1e-4]))
     g.update()  # and the next steps map on
@@ -516,7 +516,7 @@ def test_an_update_indeterminate_in_a_fold_reenters_the_nodes_the_window_took_al
     assert g.issues["pose held by a weak prior: indeterminate in an iSAM2 update"] == throws
     assert g.issues["a fold's marginal given up: indeterminate in an iSAM2 update"] == throws - 1
     np.testing.assert_allclose(g.object_positions(g.object_ids()), before, atol=1e-6)
-    np.testing.assert_allclose(g._estimate(keyframe), [17.6, 0.0, 0.0], atol=1e-6)
+    np.testing.assert_allclose(g.estimate(keyframe), [17.6, 0.0, 0.0], atol=1e-6)
     for n in range(6):  # and the next steps map on, through the next fold
         g.add_odometry("r", 45.0 + n, *odometry)
         g.update()
@@ -536,7 +536,7 @@ def test_a_retired_objects_covariance_is_its_keyframes_carried_over_plus_its_own
         anchor = g._retired_objects.anchor(g.graph.require_object(int(object_id)))
         if anchor is None:
             continue
-        pose = gtsam.Pose2(*g._estimate(anchor.keyframe))
+        pose = gtsam.Pose2(*g.estimate(anchor.keyframe))
         jac = np.zeros((2, 3))
         for i in range(3):
             d = np.zeros(3)

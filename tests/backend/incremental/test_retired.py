@@ -7,7 +7,6 @@ import pickle
 import gtsam
 import numpy as np
 
-from agrislam.backend.batch import values_at
 from agrislam.backend.incremental.retired import (
     Anchored,
     FrozenKeyframes,
@@ -15,6 +14,7 @@ from agrislam.backend.incremental.retired import (
     RetiredObjects,
     RetiredPoses,
 )
+from agrislam.backend.values import values_at
 from agrislam.geometry.se2 import compose, rotation
 
 X0, X1 = gtsam.symbol("x", 0), gtsam.symbol("x", 1)

@@ -32,8 +32,8 @@ import math
 import gtsam
 import numpy as np
 
-from agrislam.backend.base import BackendBase, pose_array
-from agrislam.backend.batch import insert_value, solve, value_array, values_at
+from agrislam.backend.base import BackendBase
+from agrislam.backend.batch import solve
 from agrislam.backend.graph import (
     POSE,
     ROW,
@@ -71,6 +71,7 @@ from agrislam.backend.incremental.retired import (
 )
 from agrislam.backend.incremental.sparsify import sparsified
 from agrislam.backend.key_table import KeyTable
+from agrislam.backend.values import insert_value, pose_array, value_array, values_at
 from agrislam.config import RowsConfig, SlamConfig
 from agrislam.geometry.drift import adjoint
 from agrislam.geometry.se2 import between, compose, pose_uncertainty_at, rotation, to_robot_frame
@@ -161,7 +162,7 @@ class IncrementalBackend(BackendBase):
         if key in self._guess:
             value = self._guess.pop(key)
         elif (anchor := self._retired_objects.pop(key)) is not None:
-            value = compose(self._estimate(anchor.keyframe), np.r_[anchor.z, 0.0])[:2]
+            value = compose(self.estimate(anchor.keyframe), np.r_[anchor.z, 0.0])[:2]
             self._push_anchor(key, anchor)
         else:
             raise KeyError(f"node {gtsam.DefaultKeyFormatter(key)} has no estimate to enter with")
@@ -214,7 +215,7 @@ class IncrementalBackend(BackendBase):
         self._live.discard(key)
         self._permanent.discard(key)
 
-    def _estimate(self, key: int) -> np.ndarray:
+    def estimate(self, key: int) -> np.ndarray:
         guess = self._pending.guess(key)
         if guess is not None:
             return guess
@@ -280,7 +281,7 @@ class IncrementalBackend(BackendBase):
         if key is None or key not in self._live:  # (entered nodes are live already)
             raise err
         keys = {key} | self._pending.factor_keys() | set(extra.keyVector() if extra else [])
-        known = {k: self._estimate(k) for k in keys}  # read before the rebuild drops any
+        known = {k: self.estimate(k) for k in keys}  # read before the rebuild drops any
         self._rebuild()
         self._pending.reenter(self._isam, known)
         held = weakly_held({key: known[key]})
@@ -328,7 +329,7 @@ class IncrementalBackend(BackendBase):
                 graph.push_back(factors.at(slot))
                 for key in self._slots.keys(slot):
                     if not point.exists(key):
-                        insert_value(point, key, self._estimate(key))
+                        insert_value(point, key, self.estimate(key))
             self._retire(window, graph, point, starts)
             marginal = marginalised(graph, point, window, self.issues)
             marginal = sparsified(marginal, point, self._newest(), self.issues)
@@ -373,7 +374,7 @@ class IncrementalBackend(BackendBase):
         with its heading)."""
         for keyframe in aged:
             cov = self._isam.marginalCovariance(keyframe)
-            self._frozen.freeze(keyframe, self._estimate(keyframe), cov)
+            self._frozen.freeze(keyframe, self.estimate(keyframe), cov)
             self._folded_heading.pop(keyframe, None)
 
     def _converge(self) -> None:
@@ -454,7 +455,7 @@ class IncrementalBackend(BackendBase):
             graph.push_back(make_factor(factor, self.slam))
             for key in factor.keys:
                 if not initial.exists(key):
-                    insert_value(initial, key, self._estimate(key))
+                    insert_value(initial, key, self.estimate(key))
         try:
             solution = solve(graph, initial, self.slam)
             fresh = isam2(self.slam)
@@ -483,7 +484,7 @@ class IncrementalBackend(BackendBase):
         factors were linearised at are taken as they are now."""
         self._converge()
         self._marginals.clear()
-        self._folded_heading = {k: self._estimate(k)[2] for k in self._folded_heading}
+        self._folded_heading = {k: self.estimate(k)[2] for k in self._folded_heading}
         self.refines += 1
 
     def _refold(
@@ -545,7 +546,7 @@ class IncrementalBackend(BackendBase):
 
     def _frames(self, keyframes: np.ndarray) -> np.ndarray:
         """(k, 3) current pose of each of `keyframes`, each distinct one read once."""
-        return np.array(per_distinct(keyframes, self._estimate)).reshape(-1, 3)
+        return np.array(per_distinct(keyframes, self.estimate)).reshape(-1, 3)
 
     def _split(
         self, keys: list[int], retired: RetiredObjects | RetiredPoses
@@ -572,7 +573,7 @@ class IncrementalBackend(BackendBase):
         """(k, dim) estimates of `keys`: the live ones each, the retired placed at once."""
         rows, live = self._split(keys, retired)
         out = np.empty((len(keys), dim))
-        out[rows < 0] = np.array([self._estimate(k) for k in live]).reshape(-1, dim)
+        out[rows < 0] = np.array([self.estimate(k) for k in live]).reshape(-1, dim)
         out[rows >= 0] = retired.placed(rows[rows >= 0], self._frames)
         return out
 

@@ -17,8 +17,8 @@ import scipy.sparse as sp
 from scipy.linalg import solve_triangular
 from threadpoolctl import ThreadpoolController
 
-from agrislam.backend.batch import insert_value, value_array
 from agrislam.backend.graph import POSE, key_kind
+from agrislam.backend.values import insert_value, value_array
 from agrislam.geometry.se2 import rotation
 
 T = TypeVar("T")

@@ -18,9 +18,9 @@ from typing import TypeVar
 import gtsam
 import numpy as np
 
-from agrislam.backend.batch import insert_value, value_array
 from agrislam.backend.graph import key_kind
 from agrislam.backend.incremental.retired import Anchored
+from agrislam.backend.values import insert_value, value_array
 from agrislam.config import SlamConfig
 
 Serialisable = TypeVar("Serialisable", gtsam.NonlinearFactorGraph, gtsam.Values)

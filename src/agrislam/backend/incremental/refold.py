@@ -14,8 +14,8 @@ from dataclasses import dataclass, field
 
 import gtsam
 
-from agrislam.backend.batch import insert_value, value_array
 from agrislam.backend.graph import SurveyGraph
+from agrislam.backend.values import insert_value, value_array
 
 
 @dataclass

@@ -17,8 +17,8 @@ from dataclasses import dataclass
 import gtsam
 import numpy as np
 
-from agrislam.backend.batch import value_array, values_at
 from agrislam.backend.key_table import KeyTable
+from agrislam.backend.values import value_array, values_at
 from agrislam.geometry.noise import gaussian, relative_to_range_bearing
 from agrislam.geometry.se2 import (
     between,
