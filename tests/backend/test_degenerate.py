@@ -82,7 +82,7 @@ def test_five_robots_sharing_landmarks_fold_their_windows_without_stopping():
 
 
 def test_a_refine_that_gtsam_cannot_solve_is_skipped_and_the_map_kept(monkeypatch):
-    import agrislam.backend.incremental.backend as incremental
+    import agrislam.backend.incremental.refine as incremental
 
     g = make_backend(SlamConfig(window=2, refine_turn_deg=0.0), RowsConfig())
     g.add_robot("r", np.zeros(3), TIGHT)
