@@ -285,7 +285,7 @@ def test_keyframes_beyond_the_kept_ones_fold_away_and_hold_what_hangs_on_them(sm
     assert all(g.kept_covariance(k) is None for k in g.node_keys("retired").tolist())
     online, exact = b.positions(g, ids), b.positions(batch, ids)
     gap = [np.linalg.norm(online[k] - exact[k]) for k in ids]
-    # moved onto the newest keyframe instead, they swung with its heading: 0.024 m
+    # moved onto the newest keyframe instead, they swung with its heading
     assert np.sqrt(np.mean(np.square(gap))) < 0.015
     g.refine()  # the whole record is kept: the batch solution again
     refined = b.positions(g, ids)

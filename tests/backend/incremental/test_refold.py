@@ -1,6 +1,6 @@
 """A refine folds the whole history onto the keyframes (backend/incremental/refold.py): with several
 robots sharing landmarks, into one dense factor over every keyframe, which iSAM2 would
-re-eliminate at every step after (issue 11). A refine during the survey refuses such a
+re-eliminate at every step after. A refine during the survey refuses such a
 fold and relinearises the keyframe graph instead."""
 
 import itertools
@@ -83,7 +83,7 @@ def test_with_several_robots_a_turn_relinearises_during_the_survey_and_alone_it_
 
 def test_robots_sharing_the_map_share_the_keyframes_it_keeps():
     """Each fold links every robot's keyframes through the landmarks they share: kept per
-    robot, five robots' graph grew five times as wide (issue 11)."""
+    robot, five robots' graph would grow five times as wide."""
     alone, together = survey(steps=40, robots=1, kept=6), survey(steps=120, robots=3, kept=6)
     assert [len(alone.keyframes(r)) for r in alone.graph.robots] == [7]  # the first + 6
     assert [len(together.keyframes(r)) for r in together.graph.robots] == [3, 3, 3]

@@ -198,8 +198,8 @@ def test_an_ill_conditioned_marginal_stays_dense_and_is_counted(monkeypatch):
 
 def test_robots_sharing_landmarks_keep_their_live_graph_narrow(monkeypatch):
     """Five robots in the arena tie their keyframes at each fold; once keyframes age out
-    the fold's marginal grew past 30 keyframes in two minutes (issue 11). Made sparse, no
-    live factor is wider than TREE_ABOVE."""
+    the fold's marginal takes in most kept keyframes. Made sparse, no live factor is wider
+    than TREE_ABOVE."""
     trees = []
     monkeypatch.setattr(
         sparsify, "junction_tree", lambda *a: trees.append(a[1]) or junction_tree(*a)

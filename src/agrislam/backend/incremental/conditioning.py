@@ -2,7 +2,7 @@
 conditioned on one keyframe, cut to the part connected to it, and with every node GTSAM
 finds indeterminate held by a weak prior, so that degenerate geometry (an object seen along
 one ray only, a robot that shares a single landmark yet) costs that node's certainty and
-never the run (issues 11 and 12)."""
+never the run."""
 
 from __future__ import annotations
 
@@ -77,7 +77,7 @@ def marginal_covariances(
     dims = np.array([3 if key_kind(key) == POSE else 2 for key in order])
     start = dict(zip(order, np.cumsum(dims) - dims, strict=True))
     if outside := [gtsam.DefaultKeyFormatter(key) for key in keys if key not in start]:
-        # a merge of objects far apart can leave one outside its keyframe's part (issue 11)
+        # a merge of objects far apart can leave one outside its keyframe's part
         raise RuntimeError(f"objects {', '.join(outside)} are not in the graph given")
     information = information_matrix(graph, point, int(dims.sum()))
     objects = np.concatenate([start[key] + np.arange(2) for key in keys])

@@ -1,6 +1,6 @@
 """Queries (part of `IncrementalBackend`, backend.py): positions, trajectories and marginal
-covariances, whatever state each node is in. Retired nodes are answered many at once from
-the arrays that hold them (a snapshot of a large map asks for every object)."""
+covariances of the graph's nodes (sec. 2.6), whatever state each is in. Retired nodes are
+answered many at once from the arrays that hold them (a snapshot asks for every object)."""
 
 from __future__ import annotations
 
