@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from agrislam.backend import (
+    GraphBackend,
     RangeBearing,
     RelativePosition,
     detection_covariance,
@@ -52,6 +53,18 @@ def kind(request):
 def test_factory_builds_the_configured_back_end():
     assert isinstance(backend("batch"), BatchBackend)
     assert isinstance(backend("keyframes"), IncrementalBackend)
+
+
+def test_every_back_end_is_what_the_protocol_lists(kind):
+    """The batch and the incremental back end, and a saved map's prior wrapping one, have
+    everything GraphBackend lists (what callers outside the back end use)."""
+    from agrislam.season.prior_backend import PriorBackend
+
+    g = backend(kind)
+    assert isinstance(g, GraphBackend)
+    assert isinstance(
+        PriorBackend(g, np.zeros(0), np.zeros((0, 2)), np.zeros((0, 2, 2))), GraphBackend
+    )
 
 
 def test_line_intersection_poor_depth_good_bearing(kind):
