@@ -1,4 +1,4 @@
-"""A window's graph made solvable on its own (backend/incremental/backend.py folds it away):
+"""A window's graph made solvable on its own (incremental/fold.py folds it away):
 conditioned on one keyframe, cut to the part connected to it, and with every node GTSAM
 finds indeterminate held by a weak prior, so that degenerate geometry (an object seen along
 one ray only, a robot that shares a single landmark yet) costs that node's certainty and
@@ -200,7 +200,7 @@ def covariances_given(
 ) -> list[np.ndarray]:
     """Covariances of objects `keys` given `keyframe` in its frame, from the part of the
     graph around connected to it (`parts()[keyframe]`, `components`); failing that,
-    FREE_SIGMA wide (a keyframe fold, backend/incremental/backend.py)."""
+    FREE_SIGMA wide (a keyframe fold, incremental/fold.py)."""
     local, nodes = parts()[keyframe]
     free = [k for k in blanket if k in nodes]
 

@@ -1,4 +1,4 @@
-"""Nodes folded out of iSAM2 (backend/incremental/backend.py), as rows of arrays so that many
+"""Nodes folded out of iSAM2 (incremental/fold.py), as rows of arrays so that many
 are placed at once:
 
 - `Retired` / `RetiredObjects` / `RetiredPoses`: each node held relative to a keyframe (a
