@@ -75,42 +75,26 @@ class IncrementalBackend(Folding, Refining, Queries, LiveGraph, BackendBase):
         self._window_start = 0
         self._folded_heading: dict[int, float] = {}  # keyframe -> heading when folded onto
         self._increments: dict[str, tuple[np.ndarray, np.ndarray]] = {}  # latest odometry
-        self._restored = False  # read back from a pickle (a checkpoint)
 
     # -------------------------------------------------------- pickle (checkpoints)
-    # what a pickle holds, in this order: the frames between checkpoints follow the saved
-    # state's size in bytes (run/checkpoint.py), and where checkpoints fall shapes the map,
-    # so the layout is kept as the back end has always saved it
-    SAVED = (
-        *("slam", "rows_config", "issues", "graph", "refines", "whole_refine", "window"),
-        *("_isam", "_live", "_permanent", "_pending", "_slots", "_guess", "_retired_objects"),
-        *("_retired_poses", "_keyframes", "_last_seen", "_seen_step", "_marginals", "_step"),
-        *("_window_start", "_folded_heading", "_frozen", "_increments", "rolls"),
-    )
-
     def __getstate__(self) -> dict:
         """The state to pickle: iSAM2 itself cannot be, so the pending update is solved
         first and iSAM2 is kept as its live factors (in slot order) and linearisation
-        point, in GTSAM's own serialisation (exact to the last bit). A restored back end
-        saves iSAM2 last, as it set it last."""
+        point, in GTSAM's own serialisation (exact to the last bit)."""
         self._solve_pending()
         self._nodes.retired_objects.settle()
-        held = self.__dict__ | self._nodes.parts()
-        held["_isam"] = serialised_isam2(self._isam, [s for s, _ in self._slots.ordered()])
-        names = [n for n in self.SAVED if n != "_isam"] if self._restored else self.SAVED
-        return {name: held[name] for name in names} | {"_isam": held["_isam"]}
+        state = self.__dict__.copy()
+        state["_isam"] = serialised_isam2(self._isam, [s for s, _ in self._slots.ordered()])
+        return state
 
     def __setstate__(self, state: dict) -> None:
         """A new iSAM2 of the saved factors at the saved linearisation point; the slots
         are numbered afresh in the saved order."""
         saved = state.pop("_isam")
-        nodes = NodeTable.from_parts({name: state.pop(name) for name in NodeTable.PARTS})
         self.__dict__.update(state)
-        self._nodes = nodes
         self._isam = isam2(self.slam)
         restore_isam2(self._isam, saved)
         self._slots.reset(entry for _, entry in self._slots.ordered())
-        self._restored = True
 
     # ------------------------------------------------------- node life cycle
     def _insert(self, key: int, value: np.ndarray) -> None:

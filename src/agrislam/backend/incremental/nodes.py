@@ -193,46 +193,6 @@ class NodeTable:
         self._kept.discard(key)
         self._state.pop(key, None)
 
-    # ---------------------------------------------------------------- pickling
-    # the parts a pickle holds, under the names the back end has always saved them by; the
-    # states follow from where each node is held
-    PARTS = (
-        "_live",
-        "_permanent",
-        "_guess",
-        "_retired_objects",
-        "_retired_poses",
-        "_keyframes",
-        "_last_seen",
-        "_seen_step",
-        "_frozen",
-    )
-
-    def parts(self) -> dict[str, object]:
-        """What a pickle of the table holds (`PARTS`)."""
-        held = (self._live, self._kept, self._guess, self.retired_objects, self.retired_poses)
-        held += (self._keyframes, self._last_seen, self._seen_step, self.frozen)
-        return dict(zip(self.PARTS, held, strict=True))
-
-    @classmethod
-    def from_parts(cls, parts: dict) -> NodeTable:
-        """The table `parts` held, each node's state read from where it is held."""
-        table = cls()
-        (
-            table._live,
-            table._kept,
-            table._guess,
-            table.retired_objects,
-            table.retired_poses,
-            table._keyframes,
-            table._last_seen,
-            table._seen_step,
-            table.frozen,
-        ) = (parts[name] for name in cls.PARTS)
-        for state in STATES:
-            table._state.put_many(table.keys(state), _CODE[state])
-        return table
-
     def moved_to(self, solution: gtsam.Values) -> None:
         """A refine's `solution`: every retired node's place on its keyframes, and every
         frozen keyframe's pose, taken from it."""
