@@ -350,34 +350,35 @@ def test_after_fold_holds_the_touched_objects_for_the_next_step():
 
 def test_a_folding_step_leaves_the_rows_and_merges_of_its_objects_to_the_next_step():
     """A fold retires its window's objects; a row constraint or a merge on one computes its
-    deferred covariance (issue 14): not in the step that folded, but the next one."""
+    deferred covariance: not in the step that folded, but the next one."""
     world = WorldModel(AgrislamConfig.model_validate({"advanced": {"slam": {"window": 20}}}))
     source = open_source(simulation_uri(plants=400, seed=2), world.config)
     records = source.records()
     world.process(next(records))  # the meta: the survey's stages are built for it
-    settled_in, folds, step = [], [], [0]
-    retired = world.backend._retired_objects
-    settle, update = retired._settle_jobs, world.backend.update
-
-    def spy_settle(jobs):
-        if jobs:
-            settled_in.append((step[0], bool(folds) and folds[-1] == step[0]))
-        return settle(jobs)
+    backend, update = world.backend, world.backend.update
+    folds, waiting_at_fold, settled_in, step = [], [], [], [0]
 
     def spy_update():
+        rolls = backend.rolls
         folded = update()
-        assert folded == (world.backend._window_start == world.backend._step)
+        assert folded == (backend.rolls > rolls)
         if folded:
             folds.append(step[0])
+            waiting_at_fold.append(backend.deferred_covariances())
         return folded
 
-    retired._settle_jobs, world.backend.update = spy_settle, spy_update
+    backend.update = spy_update
     rows_made = []
     for record in itertools.islice(records, 2999):
-        if world.process(record) is not None:
+        before = backend.deferred_covariances()
+        stepped = world.process(record) is not None
+        if folds and folds[-1] == step[0]:  # none settled once a step folded
+            assert backend.deferred_covariances() == waiting_at_fold[-1]
+        elif backend.deferred_covariances() < before:
+            settled_in.append(step[0])
+        if stepped:
             step[0] += 1
-            rows_made.append(int((world.backend.rows_of(world.active_ids()) >= 0).sum()))
+            rows_made.append(int((backend.rows_of(world.active_ids()) >= 0).sum()))
     assert len(folds) >= 5
-    assert not [s for s, after_fold in settled_in if after_fold]  # none once a step folded
-    assert any(s - 1 in folds for s, _ in settled_in)  # the step after one does settle
+    assert any(s - 1 in folds for s in settled_in)  # the step after one does settle
     assert rows_made[-1] > 50  # the plants still join their rows

@@ -11,14 +11,17 @@ import numpy as np
 import pytest
 
 from agrislam.backend import (
+    GraphBackend,
     RangeBearing,
     RelativePosition,
     detection_covariance,
     make_backend,
 )
 from agrislam.backend.batch import BatchBackend
+from agrislam.backend.graph import OBJECT, key_kind, object_key
 from agrislam.backend.incremental.backend import IncrementalBackend
 from agrislam.backend.incremental.conditioning import FREE_SIGMA
+from agrislam.backend.incremental.isam_state import PendingUpdate
 from agrislam.backend.incremental.marginal_cache import STALE
 from agrislam.config import RowsConfig, SlamConfig
 from agrislam.geometry.se2 import rotation
@@ -50,6 +53,18 @@ def kind(request):
 def test_factory_builds_the_configured_back_end():
     assert isinstance(backend("batch"), BatchBackend)
     assert isinstance(backend("keyframes"), IncrementalBackend)
+
+
+def test_every_back_end_is_what_the_protocol_lists(kind):
+    """The batch and the incremental back end, and a saved map's prior wrapping one, have
+    everything GraphBackend lists (what callers outside the back end use)."""
+    from agrislam.season.prior_backend import PriorBackend
+
+    g = backend(kind)
+    assert isinstance(g, GraphBackend)
+    assert isinstance(
+        PriorBackend(g, np.zeros(0), np.zeros((0, 2)), np.zeros((0, 2, 2))), GraphBackend
+    )
 
 
 def test_line_intersection_poor_depth_good_bearing(kind):
@@ -274,16 +289,16 @@ def test_keyframes_beyond_the_kept_ones_fold_away_and_hold_what_hangs_on_them(sm
     covariances_read = lambda step: g.object_covariances(g.object_ids()) is None  # noqa: E731
     _, ids, complete, _ = b.drive(g, survey, None, float("inf"), covariances_read)
     assert complete and g.rolls >= len(survey.steps) // 10
-    for frames in g._keyframes.values():  # the first pose and the newest two
-        assert len(frames) <= 3
-    anchors = np.concatenate([g._retired_objects.keyframes, g._retired_poses.keyframes])
-    frozen = {k for k in anchors.tolist() if k in g._frozen}
-    assert frozen and set(anchors.tolist()) - frozen <= g._live  # on a keyframe, live or held
-    assert not frozen & g._live
-    assert g._marginals.held() <= g._live  # no covariance kept per retired node
+    for robot in g.graph.robots:  # the first pose and the newest two
+        assert len(g.keyframes(robot)) <= 3
+    anchors = set(g.anchor_keyframes().tolist())
+    frozen = {k for k in anchors if g.node_state(k) == "frozen"}
+    assert frozen and all(g.node_state(k) == "live" for k in anchors - frozen)  # or held
+    # no covariance kept per retired node
+    assert all(g.kept_covariance(k) is None for k in g.node_keys("retired").tolist())
     online, exact = b.positions(g, ids), b.positions(batch, ids)
     gap = [np.linalg.norm(online[k] - exact[k]) for k in ids]
-    # moved onto the newest keyframe instead, they swung with its heading: 0.024 m
+    # moved onto the newest keyframe instead, they swung with its heading
     assert np.sqrt(np.mean(np.square(gap))) < 0.015
     g.refine()  # the whole record is kept: the batch solution again
     refined = b.positions(g, ids)
@@ -355,14 +370,15 @@ def test_a_large_loop_closure_refines_the_folded_history():
 
 
 def test_a_loop_closure_in_a_large_graph_does_not_stall_the_step_with_a_batch(monkeypatch):
-    """Past `turn_refine_max_factors` the refine a turn starts mid-survey relinearises the
+    """Past TURN_REFINE_MAX_FACTORS the refine a turn starts mid-survey relinearises the
     keyframe graph only (bounded work); an explicit refine() still solves the batch."""
-    import agrislam.backend.incremental.backend as incremental
+    import agrislam.backend.incremental.refine as incremental
 
     batches = []
     solve = incremental.solve
     monkeypatch.setattr(incremental, "solve", lambda *a: batches.append(1) or solve(*a))
-    g = make_backend(SlamConfig(window=5, turn_refine_max_factors=10), RowsConfig())
+    monkeypatch.setattr(incremental, "TURN_REFINE_MAX_FACTORS", 10)
+    g = make_backend(SlamConfig(window=5), RowsConfig())
     loop_survey(g)
     assert g.refines >= 1 and not batches
     g.refine()
@@ -372,7 +388,7 @@ def test_a_loop_closure_in_a_large_graph_does_not_stall_the_step_with_a_batch(mo
 def test_dogleg_batch_reaches_the_lm_solution():
     lm = two_copies("batch", merged=False)
     dogleg = make_backend(SlamConfig(backend="batch", batch_optimizer="dogleg"), RowsConfig())
-    dogleg.load(lm.graph, {k: lm._estimate(k) + 0.01 for k in lm.graph.all_keys()})
+    dogleg.load(lm.graph, {k: lm.estimate(k) + 0.01 for k in lm.graph.all_keys()})
     dogleg.update()
     np.testing.assert_allclose(
         dogleg.object_positions(np.array([0])), lm.object_positions(np.array([0])), atol=1e-5
@@ -414,21 +430,22 @@ def test_retired_nodes_are_where_plain_isam2_puts_them():
         g = make_backend(SlamConfig(window=window, refine_turn_deg=0.0), RowsConfig())
         line_survey(g)
         maps[window] = (g, g.object_positions(g.object_ids()), g.trajectory("r")[1])
-    keyframes = maps[5][0]
-    assert len(keyframes._retired_objects) >= 20 and len(keyframes._retired_poses) >= 25
+    retired = maps[5][0].node_keys("retired")
+    objects = np.array([key_kind(k) == OBJECT for k in retired.tolist()], dtype=bool)
+    assert objects.sum() >= 20 and (~objects).sum() >= 25
     np.testing.assert_allclose(maps[5][1], maps[0][1], atol=1e-9)
     np.testing.assert_allclose(maps[5][2], maps[0][2], atol=1e-9)
 
 
 def test_a_folds_covariances_wait_a_step_and_do_not_depend_on_when_they_are_read():
-    """The fold step leaves its objects' covariances to the next steps (issue 14); a
-    back end that reads every covariance after every step ends with the same ones."""
+    """The fold step leaves its objects' covariances to the next steps; a back end that
+    reads every covariance after every step ends with the same ones."""
     read_each_step = make_backend(SlamConfig(window=5, refine_turn_deg=0.0), RowsConfig())
     update = read_each_step.update
 
     def update_and_read() -> None:
         update()
-        if read_each_step._retired_objects._deferred:  # a fold just now
+        if read_each_step.deferred_covariances():  # a fold just now
             read_each_step.object_covariances(read_each_step.object_ids())
 
     read_each_step.update = update_and_read
@@ -438,7 +455,7 @@ def test_a_folds_covariances_wait_a_step_and_do_not_depend_on_when_they_are_read
 
     def update_and_count() -> None:
         lazy_update()
-        waiting.append(len(lazy._retired_objects._deferred))
+        waiting.append(lazy.deferred_covariances())
 
     lazy.update = update_and_count
     for g in (read_each_step, lazy):
@@ -451,51 +468,61 @@ def test_a_folds_covariances_wait_a_step_and_do_not_depend_on_when_they_are_read
     )
 
 
-def lone_on_a_bearing(g) -> tuple[int, int]:
-    """An object held by one bearing from the robot's latest pose, as a row is whose
-    members left: the next update is indeterminate near it. Returns the pose and it."""
-    from agrislam.backend.incremental.isam_state import Entry
+def lone_on_a_bearing(g, monkeypatch) -> tuple[int, int]:
+    """An object seen from the robot's latest pose whose detection iSAM2 gets as a bearing
+    alone: held by one bearing, as a row is whose members left, the next update is
+    indeterminate near it. Returns the pose and it."""
+    import agrislam.backend.incremental.backend as incremental
 
-    pose, lone = g.graph.robot("r").keys[-1], gtsam.symbol("l", 999)
-    g._pending.enter(lone, np.array([17.0, 1.0]))
-    g._live.add(lone)
-    bearing = gtsam.BearingFactor2D(
-        pose, lone, gtsam.Rot2(0.3), gtsam.noiseModel.Isotropic.Sigma(1, 0.01)
-    )
-    g._pending.add(bearing, Entry((pose, lone)))
+    pose, lone, make_factor = g.graph.robot("r").keys[-1], object_key(999), incremental.make_factor
+
+    def bearing_only(factor, slam):
+        if lone not in factor.keys:
+            return make_factor(factor, slam)
+        noise = gtsam.noiseModel.Isotropic.Sigma(1, 0.01)
+        return gtsam.BearingFactor2D(pose, lone, gtsam.Rot2(0.3), noise)
+
+    monkeypatch.setattr(incremental, "make_factor", bearing_only)
+    xy = np.array([17.0, 1.0])
+    g.add_object(999, xy)
+    z = observe_from(g.current_pose("r"), xy)
+    g.add_observation("r", 999, RelativePosition(z, detection_covariance(z, 0.05, 0.01)))
     return pose, lone
 
 
 @pytest.mark.parametrize("window", [0, 5])
-def test_a_node_an_update_leaves_indeterminate_gets_a_weak_prior_and_mapping_goes_on(window):
+def test_a_node_an_update_leaves_indeterminate_gets_a_weak_prior_and_mapping_goes_on(
+    window, monkeypatch
+):
     """A node iSAM2 cannot solve (here an object held by one bearing only, as a row is
     whose members left) does not end the run: iSAM2 is rebuilt from the live factors,
     the node held by a weak prior, the update done again, and the isolation counted."""
     g = make_backend(SlamConfig(window=window, refine_turn_deg=0.0), RowsConfig())
     line_survey(g)
-    before = g.object_positions(g.object_ids())
-    pose, lone = lone_on_a_bearing(g)
+    ids = g.object_ids()
+    before = g.object_positions(ids)
+    pose, lone = lone_on_a_bearing(g, monkeypatch)
     g.update()
     assert g.issues["object held by a weak prior: indeterminate in an iSAM2 update"] == 1
     # the map where it was (the bearing pulls the last pose a little)
-    np.testing.assert_allclose(g.object_positions(g.object_ids()), before, atol=5e-3)
-    x, y, theta = g._estimate(pose)  # the lone object turned onto its bearing, held near
-    lone_xy = g._estimate(lone)
+    np.testing.assert_allclose(g.object_positions(ids), before, atol=5e-3)
+    x, y, theta = g.estimate(pose)  # the lone object turned onto its bearing, held near
+    lone_xy = g.estimate(lone)
     assert math.atan2(lone_xy[1] - y, lone_xy[0] - x) - theta == pytest.approx(0.3, abs=0.02)
     g.add_odometry("r", 99.0, np.array([0.4, 0.0, 0.0]), np.diag([1e-3, 1e-3, 1e-4]))
     g.update()  # and the next steps map on
-    assert len(g._slots) == g._isam.getFactorsUnsafe().nrFactors()
+    assert g.live_factor_count() == g.isam_factors().nrFactors()
 
 
 @pytest.mark.parametrize("throws", [1, 2])
 def test_an_update_indeterminate_in_a_fold_reenters_the_nodes_the_window_took_all_factors_of(
-    throws,
+    throws, monkeypatch
 ):
     """A fold's update that throws is redone on a fresh iSAM2 of the live factors. The
     window took all live factors of the new keyframe (its odometry and detections), so
     the fresh iSAM2 lacks it while the fold's marginal needs it: it enters again at the
-    estimate it had (issue 11: `x1222 is not in this VectorValues`, ending a run). Thrown
-    again, the fold's marginal gives way to weak priors where its nodes stand."""
+    estimate it had (else GTSAM ends the run: `x1222 is not in this VectorValues`).
+    Thrown again, the fold's marginal gives way to weak priors where its nodes stand."""
     g = make_backend(SlamConfig(window=5, refine_turn_deg=0.0), RowsConfig())
     line_survey(g)
     odometry = np.array([0.4, 0.0, 0.0]), np.diag([1e-3, 1e-3, 1e-4])
@@ -504,24 +531,24 @@ def test_an_update_indeterminate_in_a_fold_reenters_the_nodes_the_window_took_al
         if n < 4:
             assert not g.update()
     before = g.object_positions(g.object_ids())
-    keyframe, flush = g.graph.robot("r").keys[-1], g._pending.flush
+    keyframe, flush = g.graph.robot("r").keys[-1], PendingUpdate.flush
 
-    def indeterminate_in_the_fold(isam, extra=None):
+    def indeterminate_in_the_fold(pending, isam, extra=None):
         if extra is not None and sum(g.issues.values()) < throws:  # as GTSAM throws
             raise RuntimeError(f"Indeterminate linear system ... near variable {keyframe}")
-        return flush(isam, extra)
+        return flush(pending, isam, extra)
 
-    g._pending.flush = indeterminate_in_the_fold
+    monkeypatch.setattr(PendingUpdate, "flush", indeterminate_in_the_fold)
     assert g.update()
     assert g.issues["pose held by a weak prior: indeterminate in an iSAM2 update"] == throws
     assert g.issues["a fold's marginal given up: indeterminate in an iSAM2 update"] == throws - 1
     np.testing.assert_allclose(g.object_positions(g.object_ids()), before, atol=1e-6)
-    np.testing.assert_allclose(g._estimate(keyframe), [17.6, 0.0, 0.0], atol=1e-6)
+    np.testing.assert_allclose(g.estimate(keyframe), [17.6, 0.0, 0.0], atol=1e-6)
     for n in range(6):  # and the next steps map on, through the next fold
         g.add_odometry("r", 45.0 + n, *odometry)
         g.update()
     np.testing.assert_allclose(g.current_pose("r"), [20.0, 0.0, 0.0], atol=1e-6)
-    assert len(g._slots) == g._isam.getFactorsUnsafe().nrFactors()
+    assert g.live_factor_count() == g.isam_factors().nrFactors()
 
 
 def test_a_retired_objects_covariance_is_its_keyframes_carried_over_plus_its_own():
@@ -533,10 +560,10 @@ def test_a_retired_objects_covariance_is_its_keyframes_carried_over_plus_its_own
     got = g.object_covariances(ids)
     checked = 0
     for object_id, cov in zip(ids, got, strict=True):
-        anchor = g._retired_objects.anchor(g.graph.require_object(int(object_id)))
+        anchor = g.anchor_of(g.graph.require_object(int(object_id)))
         if anchor is None:
             continue
-        pose = gtsam.Pose2(*g._estimate(anchor.keyframe))
+        pose = gtsam.Pose2(*g.estimate(anchor.keyframe))
         jac = np.zeros((2, 3))
         for i in range(3):
             d = np.zeros(3)
@@ -544,7 +571,7 @@ def test_a_retired_objects_covariance_is_its_keyframes_carried_over_plus_its_own
             ahead, back = (pose.compose(gtsam.Pose2.Expmap(s * d)) for s in (1, -1))
             jac[:, i] = (ahead.transformFrom(anchor.z) - back.transformFrom(anchor.z)) / 2e-6
         rot = rotation(pose.theta())
-        cov_k = g._isam.marginalCovariance(anchor.keyframe)
+        cov_k = g.marginal_covariance(anchor.keyframe)
         np.testing.assert_allclose(cov, jac @ cov_k @ jac.T + rot @ anchor.cov @ rot.T, rtol=1e-6)
         checked += 1
     assert checked >= 20
@@ -564,14 +591,14 @@ def test_a_new_poses_covariance_carried_through_its_odometry_is_isam2s(window):
         g.add_odometry("r", float(t), np.array([0.3, 0.05, 0.1 * t]), np.diag([1e-3, 4e-4, 2e-4]))
         carried = g.current_pose_covariance("r")
         g.update()
-        solved = g._isam.marginalCovariance(g.graph.robot("r").keys[-1])
+        solved = g.marginal_covariance(g.graph.robot("r").keys[-1])
         np.testing.assert_allclose(carried, solved, rtol=1e-9, atol=1e-12)
 
 
 def test_a_robots_pose_covariance_is_read_once_at_its_own_update():
     """Five robots' frames each read the previous pose's covariance; read fresh it walked
-    the Bayes tree down to where the other robots' updates had sunk the pose (issue 11:
-    1.4 ms a frame late in the arena). The update reads it while the pose is at the top;
+    the Bayes tree down to where the other robots' updates had sunk the pose. The update
+    reads it while the pose is at the top;
     the next frame carries that, which the other robots' frames since can only have made
     the wider (they add information)."""
     g = make_backend(SlamConfig(window=0), RowsConfig())
@@ -580,39 +607,41 @@ def test_a_robots_pose_covariance_is_read_once_at_its_own_update():
     starts = {"a": np.array([0.0, 0.0, 0.0]), "b": np.array([2.0, 0.0, np.pi / 2])}
     for robot, start in starts.items():
         g.add_robot(robot, start, np.array([0.1, 0.1, 0.05]))
-    read_at = {}
+    read_at, steps = {}, 0
     for t in range(1, 8):
         for robot in starts:
             g.add_odometry(robot, float(t), np.array([0.1, 0.0, 0.02]), np.diag([1e-3, 1e-3, 4e-4]))
             if t > 1:  # the pose its last update read is not read again ...
                 previous = g.graph.robot(robot).keys[-2]
                 g.current_pose_covariance(robot)
-                assert g._marginals.read_at(previous) == read_at[robot]
+                step, kept = g.kept_covariance(previous)
+                assert step == read_at[robot]
                 # ... and what was read then is iSAM2's now, or wider (here, a robot that
                 # shares its only landmark: one frame of the other narrows it by a third)
-                kept = g._marginal_covariance(previous)
-                fresh = g._isam.marginalCovariance(previous)
+                fresh = g.marginal_covariance(previous)
                 assert np.linalg.eigvalsh(kept - fresh).min() > -1e-12
                 assert np.all(np.diag(kept) <= 2.0 * np.diag(fresh))
             z = observe_from(g.current_pose(robot), landmark)
             g.add_observation(robot, 0, RelativePosition(z, detection_covariance(z, 0.05, 0.01)))
-            read_at[robot] = g._step  # the step the update reads at
+            read_at[robot] = steps  # the step the update reads at
             g.update()
+            steps += 1
 
 
 @pytest.mark.parametrize("kept, per_robot", [(100, 3), (3, 30)])
 def test_a_robot_keeps_the_smaller_of_its_share_and_keyframes_per_robot(
     small_survey, kept, per_robot
 ):
-    """A lone robot's 100 keyframes made a keyframe's marginal read ten times dearer than
-    its 30 at 10,000 plants (issue 14): `slam.keyframes_per_robot` caps its share."""
+    """A lone robot's many keyframes make each keyframe's marginal read dearer:
+    `slam.keyframes_per_robot` caps its share."""
     b, survey = small_survey
     slam = SlamConfig(window=10, keyframes_kept=kept, keyframes_per_robot=per_robot)
     g = make_backend(slam, RowsConfig())
     _, _, complete, _ = b.drive(g, survey, None, float("inf"))
     assert complete and g.rolls > 5
-    assert [len(frames) for frames in g._keyframes.values()] == [4]  # the first and newest 3
-    assert len(g._frozen) == g.rolls + 1 - 4  # each other keyframe aged, held where it stood
+    assert [len(g.keyframes(r)) for r in g.graph.robots] == [4]  # the first and newest 3
+    # each other keyframe aged, held where it stood
+    assert len(g.node_keys("frozen")) == g.rolls + 1 - 4
     with pytest.raises(ValueError, match="keyframes_per_robot"):
         SlamConfig(keyframes_per_robot=0)
 
@@ -641,9 +670,8 @@ def test_a_graph_above_the_batch_limit_refines_its_folded_keyframe_graph(small_s
 
 def test_isam2_is_rebuilt_when_the_slots_of_factors_it_let_go_pile_up(small_survey, monkeypatch):
     """iSAM2 keeps a slot for every factor it ever held: past slack x live + floor it is
-    rebuilt from the live factors half way between folds (issue 14), and the map is the
-    same."""
-    import agrislam.backend.incremental.backend as incremental
+    rebuilt from the live factors half way between folds, and the map is the same."""
+    import agrislam.backend.incremental.live as incremental
 
     b, survey = small_survey
     maps, slots = {}, {}
@@ -653,8 +681,8 @@ def test_isam2_is_rebuilt_when_the_slots_of_factors_it_let_go_pile_up(small_surv
         g = make_backend(SlamConfig(window=10), RowsConfig())
         _, ids, complete, _ = b.drive(g, survey, None, float("inf"))
         assert complete and g.rolls >= len(survey.steps) // 10
-        slots[name] = g._isam.getFactorsUnsafe().size()
-        assert len(g._slots) == g._isam.getFactorsUnsafe().nrFactors()  # the table follows
+        slots[name] = g.isam_factors().size()
+        assert g.live_factor_count() == g.isam_factors().nrFactors()  # the table follows
         maps[name] = b.positions(g, ids)
     assert slots["rebuilt"] < slots["kept"] / 3
     gap = [np.linalg.norm(maps["rebuilt"][k] - maps["kept"][k]) for k in maps["kept"]]
@@ -674,12 +702,15 @@ def test_object_keys_are_gtsams_symbols_and_unknown_ids_are_named():
 
 
 @pytest.mark.parametrize("robots", [1, 3])
-def test_a_marginal_read_serves_each_robot_covariance_reuse_steps_steps(robots):
-    """`slam.covariance_reuse_steps` counts each robot's steps: robots share the step
-    count, and with three a read per that many shared steps would be one every other
-    frame of each, a cost growing with the robots (issue 11). Out of sight, the object's
-    read serves STALE times as long."""
-    g = make_backend(SlamConfig(window=0, covariance_reuse_steps=2), RowsConfig())
+def test_a_marginal_read_serves_each_robot_covariance_reuse_steps_steps(robots, monkeypatch):
+    """COVARIANCE_REUSE_STEPS counts each robot's steps: robots share the step count, and
+    with three a read per that many shared steps would be one every other frame of each,
+    a cost growing with the robots. Out of sight, the object's read serves STALE times as
+    long."""
+    import agrislam.backend.incremental.live as incremental
+
+    monkeypatch.setattr(incremental, "COVARIANCE_REUSE_STEPS", 2)
+    g = make_backend(SlamConfig(window=0), RowsConfig())
     xy = np.array([2.0, 2.0])
     g.add_object(0, xy)
     starts = {f"r{n}": np.array([0.0, float(n), 0.0]) for n in range(robots)}
@@ -690,9 +721,9 @@ def test_a_marginal_read_serves_each_robot_covariance_reuse_steps_steps(robots):
     g.update()
     key = g.graph.require_objects(np.array([0]))[0]
     first = g.object_covariances(np.array([0]))
-    read_at = g._marginals.read_at(key)
+    read_at = g.kept_covariance(key)[0]
     steps = 0
-    while g._marginals.read_at(key) == read_at:  # the robots drive on without seeing it
+    while g.kept_covariance(key)[0] == read_at:  # the robots drive on without seeing it
         name = list(starts)[steps % robots]
         g.add_odometry(name, 1.0 + steps, np.array([0.1, 0.0, 0.0]), np.diag([1e-4, 1e-4, 1e-5]))
         g.update()
@@ -705,8 +736,8 @@ def test_a_fold_whose_objects_cannot_be_given_their_keyframe_gives_them_a_weak_c
     monkeypatch,
 ):
     """Where a fold's deferred job cannot condition its objects on their keyframe (an object
-    outside the keyframe's part of the graph, after a merge of objects far apart: Victoria
-    Park, issue 11), they get FREE_SIGMA and an issue; the run goes on."""
+    outside the keyframe's part of the graph, after a merge of objects far apart, as on
+    Victoria Park), they get FREE_SIGMA and an issue; the run goes on."""
     import agrislam.backend.incremental.conditioning as conditioning
 
     def outside(graph, point, keys):
@@ -717,8 +748,6 @@ def test_a_fold_whose_objects_cannot_be_given_their_keyframe_gives_them_a_weak_c
     line_survey(g)
     weak = g.issues["object given a weak covariance at a keyframe fold"]
     assert weak >= 20
-    retired = g._retired_objects
-    rows = np.arange(len(retired))
-    np.testing.assert_allclose(
-        retired.covariances(rows), np.broadcast_to(np.eye(2) * FREE_SIGMA**2, (len(rows), 2, 2))
-    )
+    retired = [k for k in g.node_keys("retired").tolist() if key_kind(k) == OBJECT]
+    covs = np.array([g.anchor_of(k).cov for k in retired])
+    np.testing.assert_allclose(covs, np.broadcast_to(np.eye(2) * FREE_SIGMA**2, covs.shape))

@@ -72,7 +72,7 @@ def test_round_trip_keeps_every_node_and_factor(tmp_path):
         np.testing.assert_allclose(np.atleast_1d(b.value), np.atleast_1d(a.value), atol=1e-12)
         np.testing.assert_allclose(b.cov, a.cov, rtol=1e-9, atol=1e-15)
     for key, value in back.values.items():
-        np.testing.assert_allclose(value, g._estimate(key), atol=1e-15)
+        np.testing.assert_allclose(value, g.estimate(key), atol=1e-15)
 
 
 def test_reoptimising_an_exported_solved_graph_does_not_move_it(tmp_path):
@@ -85,7 +85,7 @@ def test_reoptimising_an_exported_solved_graph_does_not_move_it(tmp_path):
         fresh.load(read_g2o(path).graph, back.values)
         fresh.update()  # with window 1 this folds everything onto the keyframes
         for key, value in back.values.items():
-            np.testing.assert_allclose(fresh._estimate(key), value, atol=1e-6)
+            np.testing.assert_allclose(fresh.estimate(key), value, atol=1e-6)
 
 
 def test_gtsam_reads_our_poses_and_odometry(tmp_path):
@@ -102,7 +102,7 @@ def test_gtsam_reads_our_poses_and_odometry(tmp_path):
                 values.atPose2(vertex).y(),
                 values.atPose2(vertex).theta(),
             ],
-            g._estimate(key),
+            g.estimate(key),
             atol=1e-12,
         )
     odometry = [f for f in g.graph.factors.values() if f.kind == ODOMETRY]

@@ -42,3 +42,11 @@ def test_robots_and_kinds_of_the_same_number_are_distinct_nodes():
         table[row_key(4)]
     with pytest.raises(ValueError, match=">= 0"):
         table[row_key(4)] = -1
+
+
+def test_a_key_table_puts_many_keys_at_once():
+    x, y, obj = pose_key(0, 0), pose_key(1, 70), object_key(9)
+    table = KeyTable()
+    table[x] = 7
+    table.put_many(np.array([x, y, obj], dtype=np.uint64), 3)
+    assert len(table) == 3 and dict(table.items()) == {x: 3, y: 3, obj: 3}

@@ -73,7 +73,7 @@ def test_an_indeterminate_object_is_named_by_gtsam():
 
 def test_an_object_outside_the_graph_is_a_runtime_error_naming_it():
     """A fold's deferred job asks for an object that a merge of far-apart objects left out
-    of its keyframe's part (Victoria Park, issue 11): the error is one the fold turns into a
+    of its keyframe's part (as on Victoria Park): the error is one the fold turns into a
     weak covariance and an issue, not a KeyError that ends the run."""
     graph, values = survey()
     values.insert(object_key(99), np.array([1.0, 1.0]))  # a value, but no factor here

@@ -6,7 +6,6 @@ from __future__ import annotations
 import math
 from collections import Counter
 
-import gtsam
 import numpy as np
 
 from agrislam.backend.graph import (
@@ -41,10 +40,6 @@ ANCHOR_SIGMA = np.array([1e-3, 1e-3, 1e-4])
 FREE_START_SIGMA = np.array([1e3, 1e3, math.pi])
 # where along its line a row node sits is a gauge freedom; this prior only fixes it
 ROW_ALONG_SIGMA = 1.0
-
-
-def pose_array(pose: gtsam.Pose2) -> np.ndarray:
-    return np.array([pose.x(), pose.y(), pose.theta()])
 
 
 def detection_record(measurement: Measurement, where: str) -> tuple[np.ndarray, np.ndarray]:
@@ -83,6 +78,7 @@ class BackendBase:
         self.graph = SurveyGraph(self.issues)
         self.refines = 0  # whole-graph solves so far: each may move every unsettled estimate
         self.whole_refine = 0  # the last of them that moved settled objects too (a batch)
+        self.rolls = 0  # windows folded away (the incremental back end's keyframes)
 
     # ------------------------------------------------------------ solver hooks
     def _insert(self, key: int, value: np.ndarray) -> None:
@@ -106,7 +102,7 @@ class BackendBase:
         """Node `key` is gone: merged into node `into`, or removed (None)."""
         raise NotImplementedError
 
-    def _estimate(self, key: int) -> np.ndarray:
+    def estimate(self, key: int) -> np.ndarray:
         """Best current estimate of a node: (3,) pose or (2,) point."""
         raise NotImplementedError
 
@@ -148,13 +144,13 @@ class BackendBase:
             raise ValueError(f"{where}: delta must be 3 finite numbers, got {delta!r}")
         cov = check_covariance(cov, 3, where)
         previous = chain.keys[-1]
-        guess = compose(self._estimate(previous), delta)
+        guess = compose(self.estimate(previous), delta)
         key = self.graph.add_pose(chain, t)
         self._insert(key, guess)
         self._add(self.graph.add_factor(Factor(ODOMETRY, (previous, key), delta, cov)))
 
     def current_pose(self, robot: str) -> np.ndarray:
-        return self._estimate(self.graph.robot(robot).keys[-1])
+        return self.estimate(self.graph.robot(robot).keys[-1])
 
     def add_gnss(self, robot: str, value: np.ndarray, cov: np.ndarray) -> None:
         """A GNSS fix on the robot's latest pose (estimation/gnss.py: value's layout)."""
@@ -269,7 +265,7 @@ class BackendBase:
         self._forget(key, None)
 
     def row_points(self, rows: np.ndarray) -> np.ndarray:
-        return np.array([self._estimate(self.graph.require_row(int(r))) for r in rows]).reshape(
+        return np.array([self.estimate(self.graph.require_row(int(r))) for r in rows]).reshape(
             -1, 2
         )
 
@@ -295,11 +291,11 @@ class BackendBase:
     def object_positions(self, object_ids: np.ndarray) -> np.ndarray:
         """(k, 2) current estimates of the given objects; O(k)."""
         require = self.graph.require_object
-        return np.array([self._estimate(require(int(i))) for i in object_ids]).reshape(-1, 2)
+        return np.array([self.estimate(require(int(i))) for i in object_ids]).reshape(-1, 2)
 
     def trajectory(self, robot: str) -> tuple[np.ndarray, np.ndarray]:
         chain = self.graph.robot(robot)
-        poses = np.array([self._estimate(k) for k in chain.keys]).reshape(-1, 3)
+        poses = np.array([self.estimate(k) for k in chain.keys]).reshape(-1, 3)
         return np.array(chain.times), poses
 
     def sightings(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -317,4 +313,4 @@ class BackendBase:
         return poses, rows, key_indices(pairs[:, 1])
 
 
-__all__ = ["BackendBase", "detection_record", "pose_array"]
+__all__ = ["BackendBase", "detection_record"]

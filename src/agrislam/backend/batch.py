@@ -7,8 +7,9 @@ from __future__ import annotations
 import gtsam
 import numpy as np
 
-from agrislam.backend.base import BackendBase, pose_array
-from agrislam.backend.graph import POSE, key_kind, make_factor
+from agrislam.backend.base import BackendBase
+from agrislam.backend.graph import make_factor
+from agrislam.backend.values import insert_value, value_array
 from agrislam.config import RowsConfig, SlamConfig
 
 # convergence of one step's solve; the graph starts at the previous optimum, so a step
@@ -37,28 +38,6 @@ def solve(
     if slam.batch_optimizer == "lm":
         return gtsam.LevenbergMarquardtOptimizer(graph, initial, params).optimize()
     return gtsam.DoglegOptimizer(graph, initial, params).optimize()
-
-
-def value_array(values: gtsam.Values, key: int) -> np.ndarray:
-    if key_kind(key) == POSE:
-        return pose_array(values.atPose2(key))
-    return np.asarray(values.atPoint2(key), dtype=float)
-
-
-def insert_value(values: gtsam.Values, key: int, value: np.ndarray) -> None:
-    if key_kind(key) == POSE:
-        values.insert(key, gtsam.Pose2(*value))
-    else:
-        values.insert(key, np.asarray(value, dtype=float))
-
-
-def values_at(values: gtsam.Values, keys: np.ndarray, dim: int) -> np.ndarray:
-    """(k, dim) the values of `keys` at once: poses (dim 3, POSE keys) or points (dim 2)."""
-    pose = ord(POSE)
-    stored = np.array(values.keys(), dtype=np.uint64)
-    stored = stored[(stored >> np.uint64(56) == pose) == (dim == 3)]
-    table = (gtsam.utilities.extractPose2 if dim == 3 else gtsam.utilities.extractPoint2)(values)
-    return table.reshape(-1, dim)[np.searchsorted(stored, keys)]
 
 
 class BatchBackend(BackendBase):
@@ -117,7 +96,7 @@ class BatchBackend(BackendBase):
         if self._values.exists(key):
             self._values.erase(key)
 
-    def _estimate(self, key: int) -> np.ndarray:
+    def estimate(self, key: int) -> np.ndarray:
         if key in self._guess:
             return self._guess[key]
         return value_array(self._values, key)
@@ -156,6 +135,10 @@ class BatchBackend(BackendBase):
                 self._cov_cache[key] = self._marginals.marginalCovariance(key)
             out[n] = self._cov_cache[key]
         return out
+
+    def live_size(self) -> int:
+        """Nodes in the solve: every one a factor uses."""
+        return self._values.size()
 
     # for g2o export and tests: the solver's graph and solution
     def solution(self) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values]:

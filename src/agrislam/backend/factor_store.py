@@ -1,14 +1,13 @@
-"""Every factor of a survey's graph as rows of arrays (DESIGN.md "State layout"): a field of
-100,000 plants records millions of detections, and one Python object per factor (with its
-arrays and a set per node of the factors touching it) cost about 1 KB each (issue 14).
+"""Every factor of a survey's graph as rows of arrays: a whole field records millions of
+detections, too many for a Python object each (docs/decisions.d/backend.md, "State as
+arrays").
 
 A row holds a factor's kind, its keys (one or two), its value and its covariance (a
 matrix, or a scalar sigma for the row kinds); ids are row numbers, never reused, and a
-removed row is marked dead. Value and covariance (the *payload*, 120 of a row's 148
-bytes) never change and are read again only by a refine, a merge's rewiring, a checkpoint
-or an export: they are kept `chunk_rows` rows at a time, the newest chunk in memory and
-every full one in an anonymous temporary file (`PayloadChunks`), so that the record of a
-survey costs 28 bytes of memory a factor (issue 14).
+removed row is marked dead. Value and covariance (the *payload*, most of a row) never
+change and are read again only by a refine, a merge's rewiring, a checkpoint or an
+export: they are kept `chunk_rows` rows at a time, the newest chunk in memory and every
+full one in an anonymous temporary file (`PayloadChunks`).
 
 The factors touching a node are a linked list through the rows (`_head[key]`, a
 `KeyTable`, then `_next[row, slot]`), unlinked lazily: a walk skips and splices out the
@@ -32,14 +31,13 @@ from agrislam.growing import Doubling, grown
 
 NONE = -1
 DEAD = -1
-# a GNSS factor holds six numbers (the fix in the map frame and the lever arm, issue 13)
+# a GNSS factor holds six numbers (the fix in the map frame and the lever arm)
 MAX_KEYS, MAX_VALUE, MAX_COV = 2, 6, 3
 PAYLOAD = MAX_VALUE + MAX_COV * MAX_COV  # a row's value, then its covariance
-CHUNK_ROWS = 1 << 15  # payload rows a chunk holds: 3.9 MB
-# the columns are made for this many rows at once (470 MB of address space): zeros, whose
-# pages the system gives only when a row is first written, so a small survey costs what it
-# uses and a whole field's store does not double (a doubling holds the old and the new
-# columns together: +59 MB at 2^21 rows, the 100,000-plant run's peak in its steps)
+CHUNK_ROWS = 1 << 15  # payload rows a chunk holds
+# the columns are made for this many rows at once: zeros, whose pages the system gives
+# only when a row is first written, so a small survey costs what it uses and a whole
+# field's store does not double (a doubling holds the old and the new columns together)
 RESERVED_ROWS = 1 << 24
 COLUMNS = ("_kind", "_arity", "_keys", "_value_len", "_cov_dim", "_next")
 

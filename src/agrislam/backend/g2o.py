@@ -17,7 +17,7 @@ EDGE_POINTXY, EDGE_PRIOR_XY and EDGE_PRIOR_SE2 are g2o's own slam2d types. What 
 no type for is in comment lines at the end of the file, which g2o skips:
 `# agrislam robot NAME FIRST COUNT`, `# agrislam times NAME t0 t1 ...`,
 `# agrislam object VERTEX ID`, `# agrislam row VERTEX ID ANGLE`, and a GNSS fix
-(issue 13) `# agrislam gnss POSE ZX ZY LX LY K KERNEL I(3)` (antenna in the map, lever
+`# agrislam gnss POSE ZX ZY LX LY K KERNEL I(3)` (antenna in the map, lever
 arm, kernel). GTSAM's readG2o reads
 the poses, objects and odometry of such a file (it skips the edge types it has no
 parser for). A detection is solved as bearing and range (its 2x2 covariance carried
@@ -101,18 +101,18 @@ def write_g2o(backend: BackendBase, path: str | Path, fix_first: bool = False) -
         notes.append(f"# agrislam times {name} " + " ".join(_num(t) for t in chain.times))
         for key in chain.keys:
             vertex[key] = len(vertex)
-            x, y, theta = backend._estimate(key)
+            x, y, theta = backend.estimate(key)
             lines.append(f"VERTEX_SE2 {vertex[key]} {_num(x)} {_num(y)} {_num(theta)}")
     for object_id in graph.objects:
         key = object_key(object_id)
         vertex[key] = len(vertex)
-        x, y = backend._estimate(key)
+        x, y = backend.estimate(key)
         notes.append(f"# agrislam object {vertex[key]} {object_id}")
         lines.append(f"VERTEX_XY {vertex[key]} {_num(x)} {_num(y)}")
     for row, node in graph.rows.items():
         key = row_key(row)
         vertex[key] = len(vertex)
-        x, y = backend._estimate(key)
+        x, y = backend.estimate(key)
         notes.append(f"# agrislam row {vertex[key]} {row} {_num(node.angle)}")
         lines.append(f"VERTEX_XY {vertex[key]} {_num(x)} {_num(y)}")
     for factor in graph.factors.values():
@@ -146,7 +146,7 @@ def _edge_line(factor: Factor, vertex: dict[int, int]) -> str:
     if factor.kind == ROW_ANCHOR:
         info = _rank_one(row_direction(value[2]), cov)
         return f"EDGE_PRIOR_XY {ids} {_num(value[0])} {_num(value[1])} {_upper(info)}"
-    if factor.kind == PRIOR_POINT:  # a saved map's plant (issue 15)
+    if factor.kind == PRIOR_POINT:  # a saved map's plant
         info = np.linalg.inv(cov)
         return f"EDGE_PRIOR_XY {ids} {_num(value[0])} {_num(value[1])} {_upper(info)}"
     raise ValueError(f"cannot write factor kind {factor.kind!r}")

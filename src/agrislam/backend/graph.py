@@ -35,7 +35,7 @@ ROW_MEMBER = "row_member"  # keys (row, object), value angle, cov cross-row sigm
 ROW_SPACING = "row_spacing"  # keys (row_a, row_b), value (angle, distance), cov sigma
 # keys (pose,), value (antenna x, y in the map, lever arm x, y, kernel k, kernel), cov 2x2
 GNSS = "gnss"
-PRIOR_POINT = "prior_point"  # keys (object,), value (2,) saved position, cov 2x2 (issue 15)
+PRIOR_POINT = "prior_point"  # keys (object,), value (2,) saved position, cov 2x2
 
 
 def pose_key(robot_index: int, i: int) -> int:
@@ -62,8 +62,8 @@ def row_key(row: int) -> int:
 
 
 def key_kind(key: int) -> str:
-    """The node kind's letter (in plain ints: a gtsam.Symbol costs ~1 us, and a fold asks
-    this of every node it touches)."""
+    """The node kind's letter (in plain ints: a fold asks this of every node it touches,
+    and a gtsam.Symbol is dear)."""
     return chr(int(key) >> INDEX_BITS)
 
 
@@ -257,7 +257,7 @@ def make_factor(factor: Factor, slam: SlamConfig) -> gtsam.NonlinearFactor:
     if kind == PRIOR_POSE:
         return gtsam.PriorFactorPose2(keys[0], gtsam.Pose2(*value), gaussian(cov))
     if kind == PRIOR_POINT:
-        # a plant of a saved map: its saved position with its saved covariance (issue 15)
+        # a plant of a saved map: its saved position with its saved covariance
         return gtsam.PriorFactorPoint2(keys[0], np.asarray(value, dtype=float), gaussian(cov))
     if kind == ROW_MEMBER:
         # sec. 2.6.2: plant to row node, across the row only
@@ -273,5 +273,5 @@ def make_factor(factor: Factor, slam: SlamConfig) -> gtsam.NonlinearFactor:
         along = row_direction(float(value[2]))
         return gtsam.PriorFactorPoint2(keys[0], value[:2].copy(), one_direction(along, float(cov)))
     if kind == GNSS:
-        return gnss_factor(keys[0], value, cov)  # issue 13: the antenna at t + R l
+        return gnss_factor(keys[0], value, cov)  # the antenna at t + R l
     raise ValueError(f"unknown factor kind {kind!r}")

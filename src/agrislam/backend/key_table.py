@@ -1,6 +1,5 @@
-"""A non-negative integer per node of the survey graph, held in arrays (DESIGN.md "State
-layout"): a dict entry costs about 100 bytes a node, and a field of 100,000 plants has
-several hundred thousand nodes (issue 14).
+"""A non-negative integer per node of the survey graph, held in arrays: a whole field has
+too many nodes for a dict entry each (docs/decisions.d/backend.md, "State as arrays").
 
 A key (GTSAM's symbol, backend/graph.py's layout) numbers its node densely in its low
 NODE_BITS bits within its kind and robot, the bits above: one array per kind and robot,
@@ -80,6 +79,18 @@ class KeyTable:
         self._columns[key >> NODE_BITS][key & _NUMBER] = MISSING
         self._len -= 1
         return value
+
+    def put_many(self, keys: np.ndarray, value: int) -> None:
+        """`value` for each of the distinct `keys` at once."""
+        keys = np.asarray(keys).astype(np.uint64, copy=False)
+        high = keys >> np.uint64(NODE_BITS)
+        number = (keys & np.uint64(_NUMBER)).astype(np.int64)
+        for h in np.unique(high).tolist():
+            at = number[high == h]
+            self[(h << NODE_BITS) | int(at.max())] = value  # the column grown to hold them
+            column = self._columns[h]
+            self._len += int((column[at] == MISSING).sum())
+            column[at] = value
 
     def get_many(self, keys: Iterable[int] | np.ndarray) -> np.ndarray:
         """(k,) the value of each key, MISSING where there is none."""

@@ -1,7 +1,9 @@
-"""The graph back end's interface (sec. 2.6): what the world model and its stages call."""
+"""The graph back end's interface (sec. 2.6): everything the world model, its stages, the
+season's prior and the benchmarks use of a back end."""
 
 from __future__ import annotations
 
+from collections import Counter
 from typing import Protocol, runtime_checkable
 
 import numpy as np
@@ -12,6 +14,12 @@ from agrislam.geometry.noise import Measurement
 @runtime_checkable
 class GraphBackend(Protocol):
     """A pose-and-object graph: robot chains, objects, detections, rows; solved per step."""
+
+    # degenerate geometry isolated instead of ending the run, counted by reason
+    issues: Counter[str]
+    refines: int  # whole-graph solves so far (each may move every unsettled estimate)
+    whole_refine: int  # the last of them that moved settled objects too
+    rolls: int  # windows folded away so far
 
     def add_robot(
         self,
@@ -31,6 +39,9 @@ class GraphBackend(Protocol):
 
     def add_object(self, object_id: int, xy: np.ndarray) -> None: ...
 
+    # a saved map's plant: its saved position and covariance as a prior
+    def add_object_prior(self, object_id: int, xy: np.ndarray, cov: np.ndarray) -> None: ...
+
     def add_observation(self, robot: str, object_id: int, measurement: Measurement) -> None: ...
 
     # True: this step folded a window (work that can wait is best left to the next step)
@@ -44,7 +55,16 @@ class GraphBackend(Protocol):
 
     def trajectory(self, robot: str) -> tuple[np.ndarray, np.ndarray]: ...
 
+    # every pose, and each (pose row, object id) a detection joins
     def sightings(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]: ...
+
+    # best current estimate of node `key`: (3,) pose or (2,) point
+    def estimate(self, key: int) -> np.ndarray: ...
+
+    # ids of objects that no longer move until a refine
+    def settled_objects(self) -> np.ndarray: ...
+
+    def live_size(self) -> int: ...
 
     def merge_objects(self, keep: int, drop: int) -> None: ...
 

@@ -5,9 +5,9 @@ import gtsam
 import numpy as np
 import pytest
 
-from agrislam.backend.batch import values_at
 from agrislam.backend.incremental.isam_state import Entry, PendingUpdate, SlotTable, per_distinct
 from agrislam.backend.incremental.retired import Anchored, anchor_factor
+from agrislam.backend.values import values_at
 
 X0, X1 = gtsam.symbol("x", 0), gtsam.symbol("x", 1)
 L0, L1 = gtsam.symbol("l", 0), gtsam.symbol("l", 1)

@@ -12,6 +12,12 @@ import numpy as np
 from agrislam.backend.incremental.marginal_cache import SETTLED, STALE, MarginalCache
 
 
+def read_at(cache: MarginalCache, key: int) -> int | None:
+    """The step the kept covariance of `key` was read at (None: none is kept)."""
+    kept = cache.kept(key)
+    return None if kept is None else kept[0]
+
+
 class Reads:
     """A stand-in for iSAM2's marginalCovariance that counts its calls."""
 
@@ -28,8 +34,8 @@ def test_a_seen_objects_covariance_serves_its_reuse_steps_then_is_read_again():
     cache.sighted(7)
     first = cache.get(7, 0, 3, read)
     cache.sighted(7)  # seen since the read (a young object's is read again on measured)
-    assert cache.get(7, 2, 3, read) is first and read.count == 1 and cache.read_at(7) == 0
-    assert cache.get(7, 3, 3, read)[0, 0] == 2.0 and cache.read_at(7) == 3
+    assert cache.get(7, 2, 3, read) is first and read.count == 1 and read_at(cache, 7) == 0
+    assert cache.get(7, 3, 3, read)[0, 0] == 2.0 and read_at(cache, 7) == 3
 
 
 def test_a_covariance_with_no_new_factor_serves_stale_times_as_long():
@@ -42,10 +48,10 @@ def test_a_covariance_with_no_new_factor_serves_stale_times_as_long():
     assert read.count == 2
     cache.measured([99])  # a fold's factor on the keyframe: read again at once
     cache.get(99, STALE * 3 - 1, 3, read)
-    assert read.count == 3 and cache.read_at(99) == STALE * 3 - 1
+    assert read.count == 3 and read_at(cache, 99) == STALE * 3 - 1
     cache.get(7, STALE * 3, 3, read)
     cache.get(99, 2 * STALE * 3 - 1, 3, read)
-    assert read.count == 5 and cache.read_at(7) == STALE * 3
+    assert read.count == 5 and read_at(cache, 7) == STALE * 3
 
 
 def test_a_new_factor_calls_for_a_fresh_read_until_the_object_is_settled():
@@ -55,11 +61,11 @@ def test_a_new_factor_calls_for_a_fresh_read_until_the_object_is_settled():
         cache.sighted(7)
         cache.measured([7, 99])  # 99: a pose, never sighted: always read again
         fresh = sighting < SETTLED
-        assert (cache.read_at(7) is None) == fresh, sighting
+        assert (read_at(cache, 7) is None) == fresh, sighting
     assert read.count == SETTLED + 1  # the settled object's read served on
     cache.get(99, 0, 10, read)
     cache.measured([99])
-    assert cache.read_at(99) is None
+    assert read_at(cache, 99) is None
 
 
 def test_a_dropped_node_keeps_its_sightings_a_forgotten_one_does_not():
@@ -105,11 +111,11 @@ def test_the_reads_due_come_from_one_joint_marginal_equal_to_each_read_alone():
     cache.get(points[0], 0, 10, read)  # still fresh: not read again
     cache.read_jointly([points[0], points[1], points[2], points[1], x[2]], 1, 10, isam)
     for key in (points[1], points[2], x[2]):
-        assert cache.read_at(key) == 1
+        assert read_at(cache, key) == 1
         np.testing.assert_allclose(
             cache.get(key, 2, 10, read), isam.marginalCovariance(key), rtol=1e-9, atol=1e-12
         )
-    assert read.count == 1 and cache.read_at(points[0]) == 0
+    assert read.count == 1 and read_at(cache, points[0]) == 0
     cache.sighted(points[0])
     cache.read_jointly([points[0]], 10, 10, isam)  # one due: read alone, by `get`
-    assert cache.read_at(points[0]) == 0
+    assert read_at(cache, points[0]) == 0

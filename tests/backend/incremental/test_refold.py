@@ -1,6 +1,6 @@
 """A refine folds the whole history onto the keyframes (backend/incremental/refold.py): with several
 robots sharing landmarks, into one dense factor over every keyframe, which iSAM2 would
-re-eliminate at every step after (issue 11). A refine during the survey refuses such a
+re-eliminate at every step after. A refine during the survey refuses such a
 fold and relinearises the keyframe graph instead."""
 
 import itertools
@@ -47,13 +47,13 @@ def look(g, robot: str, pose: np.ndarray) -> None:
 
 
 def widest_live_factor(g) -> int:
-    factors = g._isam.getFactorsUnsafe()
+    factors = g.isam_factors()
     return max(factors.at(n).size() for n in range(factors.size()) if factors.exists(n))
 
 
 def test_the_history_of_robots_sharing_landmarks_folds_into_one_factor_over_every_keyframe():
     g = survey()
-    keyframes = sum(len(frames) for frames in g._keyframes.values())
+    keyframes = sum(len(g.keyframes(robot)) for robot in g.graph.robots)
     g.refine()  # the end of a survey: no step comes after
     assert widest_live_factor(g) == keyframes > 30
     np.testing.assert_allclose(g.object_positions(np.arange(4)), LANDMARKS, atol=1e-3)
@@ -77,17 +77,17 @@ def test_with_several_robots_a_turn_relinearises_during_the_survey_and_alone_it_
         assert g.refines > 0
         assert (g.whole_refine > 0) == whole
         if robots > 1:
-            keyframes = sum(len(frames) for frames in g._keyframes.values())
+            keyframes = sum(len(g.keyframes(robot)) for robot in g.graph.robots)
             assert widest_live_factor(g) < keyframes
 
 
 def test_robots_sharing_the_map_share_the_keyframes_it_keeps():
     """Each fold links every robot's keyframes through the landmarks they share: kept per
-    robot, five robots' graph grew five times as wide (issue 11)."""
+    robot, five robots' graph would grow five times as wide."""
     alone, together = survey(steps=40, robots=1, kept=6), survey(steps=120, robots=3, kept=6)
-    assert [len(frames) for frames in alone._keyframes.values()] == [7]  # the first + 6
-    assert [len(frames) for frames in together._keyframes.values()] == [3, 3, 3]
-    assert len(together._frozen) > 0 and not set(together._frozen.keys().tolist()) & together._live
+    assert [len(alone.keyframes(r)) for r in alone.graph.robots] == [7]  # the first + 6
+    assert [len(together.keyframes(r)) for r in together.graph.robots] == [3, 3, 3]
+    assert len(together.node_keys("frozen")) > 0
     np.testing.assert_allclose(together.object_positions(np.arange(4)), LANDMARKS, atol=1e-3)
 
 
@@ -100,14 +100,14 @@ def test_a_robot_that_joins_shrinks_the_others_share_a_keyframe_a_fold():
     kept = []
     for k in range(100):
         name = "r0" if k < 40 or k % 2 else "r1"
-        if name not in g._keyframes:
+        if name not in g.graph.robots:
             g.add_robot(name, poses[name], np.array([1e-3, 1e-3, 1e-4]))
         else:
             poses[name] = compose(poses[name], STEP)
             g.add_odometry(name, float(k), STEP, np.diag([1e-3, 1e-3, 1e-4]))
         look(g, name, poses[name])
         g.update()
-        kept.append(len(g._keyframes["r0"]))
+        kept.append(len(g.keyframes("r0")))
     assert kept[39] == 7  # alone, the first keyframe and its six
     assert all(before - after <= 1 for before, after in itertools.pairwise(kept))
     assert kept[-1] == 4  # then the first and half of six

@@ -7,7 +7,6 @@ import pickle
 import gtsam
 import numpy as np
 
-from agrislam.backend.batch import values_at
 from agrislam.backend.incremental.retired import (
     Anchored,
     FrozenKeyframes,
@@ -15,6 +14,7 @@ from agrislam.backend.incremental.retired import (
     RetiredObjects,
     RetiredPoses,
 )
+from agrislam.backend.values import values_at
 from agrislam.geometry.se2 import compose, rotation
 
 X0, X1 = gtsam.symbol("x", 0), gtsam.symbol("x", 1)
@@ -55,8 +55,8 @@ def window_poses(start, end, poses):
 
 
 def test_retired_poses_sit_between_their_window_keyframes_by_distance_driven():
-    # issue 13: a window's poses were tied to its newest keyframe alone, so a correction
-    # that reached that keyframe later swung the whole window about it
+    # tied to the window's newest keyframe alone, its poses swung with a correction
+    # that reached that keyframe later
     driven = [(1.0, 0.0, 0.0), (2.0, 0.0, 0.0), (8.0, 0.0, 0.0)]
     values, keys = window_poses((0.0, 0.0, 0.0), (10.0, 0.0, 0.0), driven)
     table = RetiredPoses()
@@ -93,7 +93,7 @@ def test_a_window_whose_start_is_unknown_is_held_by_its_end_keyframe():
 
 
 def test_deferred_covariances_are_computed_once_when_read_or_settled():
-    """A fold's covariances wait (issue 14): `pace` computes the oldest once a step unless
+    """A fold's covariances wait: `pace` computes the oldest once a step unless
     a read did; a read computes only what it reads; a pop, an anchor and a pickle
     settle first; a removal leaves unneeded work undone."""
     table, calls = RetiredObjects(), []

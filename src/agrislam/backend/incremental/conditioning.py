@@ -1,8 +1,8 @@
-"""A window's graph made solvable on its own (backend/incremental/backend.py folds it away):
+"""A window's graph made solvable on its own (incremental/fold.py folds it away):
 conditioned on one keyframe, cut to the part connected to it, and with every node GTSAM
 finds indeterminate held by a weak prior, so that degenerate geometry (an object seen along
 one ray only, a robot that shares a single landmark yet) costs that node's certainty and
-never the run (issues 11 and 12)."""
+never the run."""
 
 from __future__ import annotations
 
@@ -17,8 +17,8 @@ import scipy.sparse as sp
 from scipy.linalg import solve_triangular
 from threadpoolctl import ThreadpoolController
 
-from agrislam.backend.batch import insert_value, value_array
 from agrislam.backend.graph import POSE, key_kind
+from agrislam.backend.values import insert_value, value_array
 from agrislam.geometry.se2 import rotation
 
 T = TypeVar("T")
@@ -77,7 +77,7 @@ def marginal_covariances(
     dims = np.array([3 if key_kind(key) == POSE else 2 for key in order])
     start = dict(zip(order, np.cumsum(dims) - dims, strict=True))
     if outside := [gtsam.DefaultKeyFormatter(key) for key in keys if key not in start]:
-        # a merge of objects far apart can leave one outside its keyframe's part (issue 11)
+        # a merge of objects far apart can leave one outside its keyframe's part
         raise RuntimeError(f"objects {', '.join(outside)} are not in the graph given")
     information = information_matrix(graph, point, int(dims.sum()))
     objects = np.concatenate([start[key] + np.arange(2) for key in keys])
@@ -200,7 +200,7 @@ def covariances_given(
 ) -> list[np.ndarray]:
     """Covariances of objects `keys` given `keyframe` in its frame, from the part of the
     graph around connected to it (`parts()[keyframe]`, `components`); failing that,
-    FREE_SIGMA wide (a keyframe fold, backend/incremental/backend.py)."""
+    FREE_SIGMA wide (a keyframe fold, incremental/fold.py)."""
     local, nodes = parts()[keyframe]
     free = [k for k in blanket if k in nodes]
 

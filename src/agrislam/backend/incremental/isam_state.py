@@ -1,4 +1,4 @@
-"""The incremental back end's state (backend/incremental/backend.py), in parts with one rule each:
+"""iSAM2's bookkeeping in the incremental back end (incremental/live.py), one rule a part:
 
 - `PendingUpdate`: what the next iSAM2 update adds (factors, new nodes with their initial
   values) and removes (factor slots). `flush` hands it to `ISAM2.update` and clears it. A
@@ -18,9 +18,9 @@ from typing import TypeVar
 import gtsam
 import numpy as np
 
-from agrislam.backend.batch import insert_value, value_array
 from agrislam.backend.graph import key_kind
 from agrislam.backend.incremental.retired import Anchored
+from agrislam.backend.values import insert_value, value_array
 from agrislam.config import SlamConfig
 
 Serialisable = TypeVar("Serialisable", gtsam.NonlinearFactorGraph, gtsam.Values)

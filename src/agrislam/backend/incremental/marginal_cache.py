@@ -1,16 +1,12 @@
 """Marginal covariances read from iSAM2 for association, kept for a few steps: each read
-is a Bayes-tree traversal, and a frame reads one for each of its candidates (issue 11:
-a quarter of a run's time when every read was fresh).
+is a Bayes-tree traversal, and a frame reads one for each of its candidates.
 
 A covariance serves `reuse` steps if a detection has joined its object since the read,
 `STALE` times as long otherwise: a node without a factor of its own changes only through
 its neighbours (a robot's drift, a loop), and an older covariance only overstates the
-uncertainty (the gate is the wider for it). Keyframes (read for the objects retired onto
-them) and objects out of sight, read again every `reuse` steps, were few of the reads at
-10,000 plants but the dearest, deep in the Bayes tree (issue 14). A new factor makes a
-node read again at once, except on an object already seen `SETTLED` times: one more
-sighting shrinks its covariance by about a `SETTLED + 1`-th, and such re-sightings were
-three quarters of the reads at 10,000 plants."""
+uncertainty (the gate is the wider for it). A new factor makes a node read again at once,
+except on an object already seen `SETTLED` times: one more sighting shrinks its
+covariance by about a `SETTLED + 1`-th."""
 
 from __future__ import annotations
 
@@ -45,8 +41,7 @@ class MarginalCache:
 
     def read_jointly(self, keys: list[int], step: int, reuse: int, isam: gtsam.ISAM2) -> None:
         """The covariances of `keys` that `get` would read now, read at once from their
-        joint marginal: one Bayes-tree walk for them all, not one each (issue 14: a
-        frame's reads cost 40 % less)."""
+        joint marginal: one Bayes-tree walk for them all, not one each."""
         due = list(dict.fromkeys(key for key in keys if self._due(key, step, reuse)))
         if len(due) > 1:
             joint = isam.jointMarginalCovariance(due)
@@ -65,10 +60,10 @@ class MarginalCache:
         """The keys whose covariance is kept."""
         return set(self._read)
 
-    def read_at(self, key: int) -> int | None:
-        """The step the kept covariance of `key` was read at (None: none is kept)."""
+    def kept(self, key: int) -> tuple[int, np.ndarray] | None:
+        """The step the kept covariance of `key` was read at, and it (None: none is kept)."""
         cached = self._read.get(key)
-        return None if cached is None else cached[0]
+        return None if cached is None else cached[:2]
 
     def sighted(self, obj: int) -> None:
         """A detection factor joins object `obj`."""

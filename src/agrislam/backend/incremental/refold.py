@@ -1,11 +1,11 @@
 """A refine's whole history folded onto the live nodes at the batch solution
-(backend/incremental/backend.py, `refine`): the record's factors among the live nodes stay as
-they are (nonlinear), the rest is marginalised onto them exactly.
+(incremental/refine.py): the record's factors among the live nodes stay as they are
+(nonlinear), the rest is marginalised onto them exactly.
 
 The marginal ties together every live node one eliminated node's factors reach: with
 several robots sharing landmarks, every keyframe of every robot, in one dense factor that
-iSAM2 then re-eliminates at every step (issue 11: 367 keyframes, 600 ms steps). The
-caller can refuse such a fold (`Refolded.widest`).
+iSAM2 then re-eliminates at every step. The caller can refuse such a fold
+(`Refolded.widest`).
 """
 
 from __future__ import annotations
@@ -14,8 +14,8 @@ from dataclasses import dataclass, field
 
 import gtsam
 
-from agrislam.backend.batch import insert_value, value_array
 from agrislam.backend.graph import SurveyGraph
+from agrislam.backend.values import insert_value, value_array
 
 
 @dataclass

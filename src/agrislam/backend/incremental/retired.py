@@ -1,4 +1,4 @@
-"""Nodes folded out of iSAM2 (backend/incremental/backend.py), as rows of arrays so that many
+"""Nodes folded out of iSAM2 (incremental/fold.py), as rows of arrays so that many
 are placed at once:
 
 - `Retired` / `RetiredObjects` / `RetiredPoses`: each node held relative to a keyframe (a
@@ -17,8 +17,8 @@ from dataclasses import dataclass
 import gtsam
 import numpy as np
 
-from agrislam.backend.batch import value_array, values_at
 from agrislam.backend.key_table import KeyTable
+from agrislam.backend.values import value_array, values_at
 from agrislam.geometry.noise import gaussian, relative_to_range_bearing
 from agrislam.geometry.se2 import (
     between,
@@ -200,8 +200,7 @@ class RetiredPoses(Retired):
     onto (`keyframes`, `local`) and the robot's keyframe before it (`starts`, `start_local`),
     and placed between the two by `share`, its share of the distance driven from the start.
     A correction that reaches one end of the window later then moves the poses near that end,
-    not the whole window swung about its newest keyframe (issue 13: a rigid tie put the
-    window's first poses of an RTK survey 0.044 m off against 0.018 m at the keyframe)."""
+    not the whole window swung about its newest keyframe."""
 
     def __init__(self) -> None:
         super().__init__(3)
@@ -265,7 +264,7 @@ class RetiredObjects(Retired):
     covariance of z given the keyframe.
 
     A keyframe fold retires objects at once but may leave their covariances (most of a
-    fold's work, issue 14) to be `defer`red: `pace` computes the oldest a step later,
+    fold's work) to be `defer`red: `pace` computes the oldest a step later,
     and every read of a covariance settles what it reads first. The result does not
     depend on when it is computed (a deferred computation holds its own graph and values),
     so the map is the same whether it runs at once, later, or before a checkpoint."""
@@ -297,6 +296,10 @@ class RetiredObjects(Retired):
         job = Deferred(keys, compute)
         self._deferred.append(job)
         self._waiting.update(dict.fromkeys(keys, job))
+
+    def waiting(self) -> int:
+        """Deferred computations not done yet."""
+        return len(self._deferred)
 
     def settle(self, count: int | None = None) -> None:
         """Compute the oldest `count` deferred covariances (all of them by default)."""

@@ -1,11 +1,10 @@
-"""A fold's dense marginal over many keyframes made sparse (backend/incremental/backend.py,
-`_fold`): the newest keyframes' joint kept exact, the older ones hung from it by a
-Chow-Liu tree.
+"""A fold's dense marginal over many keyframes made sparse (incremental/fold.py): the
+newest keyframes' joint kept exact, the older ones hung from it by a Chow-Liu tree.
 
 Robots that share landmarks tie their keyframes together at every fold; once keyframes age
 out, each fold's marginal takes in the last one's, and the factor grows to most kept
-keyframes (issue 11: from 7 keys to 77 over the arena's 15 minutes, one dense clique that
-every iSAM2 update and every marginal read goes through). The Chow-Liu tree is the
+keyframes: one dense clique that every iSAM2 update and every marginal read goes
+through. The Chow-Liu tree is the
 tree-shaped Gaussian nearest to a Gaussian (least Kullback-Leibler divergence; Chow and
 Liu 1968, as Kretzschmar and Stachniss compress pose graphs, IJRR 2012): it keeps each
 keyframe's marginal and the joint marginal of each tree edge's pair exactly, as one
@@ -68,7 +67,7 @@ def sparsified(
 
 def _several_robots_wide(keys: list[int]) -> bool:
     """Keyframes only, more than TREE_ABOVE, of more than one robot: a lone robot keeps
-    at most `slam.keyframes_per_robot`, a clique iSAM2 carries (issue 14); robots that
+    at most `slam.keyframes_per_robot`, a clique iSAM2 carries; robots that
     share landmarks tie up to `slam.keyframes_kept` together."""
     if len(keys) <= TREE_ABOVE or any(key_kind(k) != POSE for k in keys):
         return False
