@@ -1,5 +1,5 @@
 """Every factor of a survey's graph as rows of arrays: a whole field records millions of
-detections, too many for a Python object each (docs/decisions.d/backend.md, "State as
+detections, too many for a Python object each (docs/decisions.md, "State as
 arrays").
 
 A row holds a factor's kind, its keys (one or two), its value and its covariance (a

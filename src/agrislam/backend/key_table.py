@@ -1,5 +1,5 @@
 """A non-negative integer per node of the survey graph, held in arrays: a whole field has
-too many nodes for a dict entry each (docs/decisions.d/backend.md, "State as arrays").
+too many nodes for a dict entry each (docs/decisions.md, "State as arrays").
 
 A key (GTSAM's symbol, backend/graph.py's layout) numbers its node densely in its low
 NODE_BITS bits within its kind and robot, the bits above: one array per kind and robot,

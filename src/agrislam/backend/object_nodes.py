@@ -1,6 +1,6 @@
 """The object nodes of the survey graph (graph.SurveyGraph.objects): object id -> the
 map-frame position it was added at, as arrays instead of a dict holding a numpy array
-per plant (docs/decisions.d/backend.md, "State as arrays").
+per plant (docs/decisions.md, "State as arrays").
 
 Object ids are the object table's row numbers: small non-negative integers, so a slot
 array indexed by id answers membership; the ids are kept in the order they were added
