@@ -206,8 +206,12 @@ def test_robots_sharing_landmarks_keep_their_live_graph_narrow(monkeypatch):
     )
     widest = []
     arena = ArenaConfig.model_validate({"seed": 1, "driving": {"duration_s": 100.0}})
-    config = AgrislamConfig.model_validate({"slam": {"window": 30, "keyframes_kept": 50}})
+    config = AgrislamConfig.model_validate(
+        {"advanced": {"slam": {"window": 30, "keyframes_kept": 50}}}
+    )
     world = WorldModel(config)
+    records = list(ArenaSimulator(arena).records())
+    world.process(records[0])  # the meta: the survey's stages are built for it
     update = world.backend.update
 
     def watched() -> bool:
@@ -218,7 +222,7 @@ def test_robots_sharing_landmarks_keep_their_live_graph_narrow(monkeypatch):
         return folded
 
     world.backend.update = watched
-    result = run_survey(list(ArenaSimulator(arena).records()), world)
+    result = run_survey(records[1:], world)
     assert result.error is None and len(widest) > 30
     assert trees and max(len(keys) for keys in trees) > sparsify.TREE_ABOVE
     assert max(widest) <= sparsify.TREE_ABOVE
