@@ -53,8 +53,14 @@ VARIANTS: dict[str, dict[str, Any]] = {
     "agrislam": {},
     # the paper's association and noise as logged, pinned: the baseline when defaults change
     "paper's gate": {
-        "association": {"innovation_gate": False, "gate_chi2": 1.0, "landmark_defaults": False},
-        "sensor": {"calibration": {"enabled": False}},
+        "advanced": {
+            "association": {
+                "innovation_gate": False,
+                "gate_chi2": 1.0,
+                "landmark_defaults": False,
+            },
+            "sensor": {"calibration": {"enabled": False}},
+        }
     },
 }
 # a landmark counts as mapped if an object lies within this of it (one to one: the most

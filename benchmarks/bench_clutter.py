@@ -32,12 +32,14 @@ VARIANTS: dict[str, dict[str, Any]] = {
     "agrislam": {},
     # the paper's association (sec. 2.4) and maintenance (sec. 2.6.3) pinned: the baseline
     "paper": {
-        "association": {
-            "innovation_gate": False,
-            "gate_chi2": 1.0,
-            "landmark_defaults": False,
-        },
-        "maintenance": {"existence": False},
+        "advanced": {
+            "association": {
+                "innovation_gate": False,
+                "gate_chi2": 1.0,
+                "landmark_defaults": False,
+            },
+            "maintenance": {"existence": False},
+        }
     },
 }
 SCENARIOS: dict[str, dict[str, float]] = {

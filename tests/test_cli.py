@@ -197,7 +197,10 @@ def _one_message(result, code: int, *says: str) -> None:
     [
         ("sensor:\n  detection_sigma_depth: -0.1\n", "sensor.detection_sigma_depth: Input should"),
         ("association:\n  gate_chii: 9\n", "association.gate_chii: unknown key"),
-        ("association:\n  gate_chi2: .nan\n", "association.gate_chi2: Input should be a finite"),
+        (
+            "advanced:\n  association:\n    gate_chi2: .nan\n",
+            "advanced.association.gate_chi2: Input should be a finite",
+        ),
         ("association: [1,\n", "not valid YAML at line 2"),
     ],
 )

@@ -93,7 +93,7 @@ def test_a_detection_far_from_every_object_starts_a_new_one():
 @pytest.mark.parametrize("whole_innovation", [False, True])
 def test_two_robots_feed_one_map(whole_innovation):
     # with the whole innovation covariance, b has no chain to what a saw: absolute bound
-    world = WorldModel(config(association={"innovation_gate": whole_innovation}))
+    world = WorldModel(config(advanced={"association": {"innovation_gate": whole_innovation}}))
     world.process(
         Meta(
             robots={
@@ -140,7 +140,7 @@ def test_without_a_field_prior_two_landmarks_nearer_than_d_inter_seen_together_s
 
 
 def test_a_one_off_uncertain_detection_is_pruned_after_its_grace_period():
-    cfg = config(maintenance={"prune_grace_s": 2.0, "prune_min_interest": 0.6})
+    cfg = config(advanced={"maintenance": {"prune_grace_s": 2.0, "prune_min_interest": 0.6}})
     world = WorldModel(cfg)
     ghost = Detection(xy=np.array([1.2, -1.5]), cov=COV)  # no semantics: h = 0.5 ... 1
     world.process(Detections(0.0, "r1", (*seen_from(np.zeros(3), PLANTS), ghost)))
@@ -193,7 +193,11 @@ def test_near_neighbours_stay_apart_while_the_robot_is_lost_in_the_map(chain):
     # covariance must come from the odometry chain, not from the absolute marginals
     plants = np.column_stack([np.arange(1.0, 7.0), np.zeros(6)])
     world = WorldModel(
-        config(association={"innovation_gate": True, "gate_chi2": 5.99, "gate_sigma_max": 3})
+        config(
+            advanced={
+                "association": {"innovation_gate": True, "gate_chi2": 5.99, "gate_sigma_max": 3}
+            }
+        )
     )
     world.process(Meta(robots={"r1": RobotStart(np.zeros(3), np.array([5.0, 5.0, 0.05]))}))
     if not chain:  # as if every plant had been last seen by another robot
@@ -278,7 +282,7 @@ def test_a_robot_of_the_meta_that_never_drives_is_reported_not_a_crash():
 def test_a_field_prior_without_a_row_spacing_leaves_the_rows_alone(spacing):
     """Issue 12: row_spacing 0 in a log's field prior ended in ZeroDivisionError in the row
     code. Sources refuse such a meta; one built in code is ignored with an issue."""
-    world = WorldModel(config(rows={"enabled": True, "n_det_est": 4}))
+    world = WorldModel(config(rows={"enabled": True}, advanced={"rows": {"n_det_est": 4}}))
     world.process(Meta(field=FieldPrior(row_spacing=spacing, min_plant_distance=-0.4)))
     drive(world, "r1", straight(0.0, 1.0, 0.5, 8))
     world.finish()

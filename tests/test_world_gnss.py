@@ -27,7 +27,9 @@ def survey(gnss: bool, plants: int = 60) -> list:
 
 @pytest.mark.parametrize("backend", ["incremental", "batch"])
 def test_rtk_fixes_put_the_map_where_the_truth_is(backend: str, tmp_path: Path) -> None:
-    config = AgrislamConfig.model_validate({"slam": {"backend": backend, "window": 20}})
+    config = AgrislamConfig.model_validate(
+        {"slam": {"backend": backend}, "advanced": {"slam": {"window": 20}}}
+    )
     with_gnss = run_survey(survey(True), WorldModel(config), tmp_path / "gnss")
     without = run_survey(survey(False), WorldModel(config))
     traj = with_gnss.metrics["trajectory"]["optimised"]["rms_position"]

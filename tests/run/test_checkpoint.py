@@ -89,11 +89,18 @@ def _same_map(a, b) -> None:
         np.testing.assert_allclose(trajectory.poses, b.trajectories[robot].poses, atol=1e-9)
 
 
-@pytest.mark.parametrize("backend", [{"window": 100}, {"window": 0}, {"backend": "batch"}])
+@pytest.mark.parametrize(
+    "backend",
+    [
+        {"advanced": {"slam": {"window": 100}}},
+        {"advanced": {"slam": {"window": 0}}},
+        {"slam": {"backend": "batch"}},
+    ],
+)
 def test_a_saved_world_read_back_twice_carries_on_the_same_both_times(log, backend):
     """What resume relies on: every part of the world pickles (a part that cannot fails
     here), and two worlds read back from one save map the rest of the survey alike."""
-    cfg = config(slam=backend)
+    cfg = config(**backend)
     records = [
         r
         for r in synchronise(open_source(log, cfg).records())
@@ -190,7 +197,7 @@ def test_a_stopped_run_resumes_to_the_same_map(log, uninterrupted, tmp_path):
 def test_resume_refuses_a_checkpoint_of_another_log_or_config(log, tmp_path):
     _stopped_run(log, tmp_path, after=300)
     with pytest.raises(ResumeError, match="another config"):
-        _run(log, tmp_path, config(maintenance={"prune": False}), resume=True)
+        _run(log, tmp_path, config(advanced={"maintenance": {"prune": False}}), resume=True)
     other = tmp_path / "other.jsonl"
     lines = log.read_text().splitlines(keepends=True)
     changed = lines[3].replace("1", "2", 1)  # one digit of an early record
