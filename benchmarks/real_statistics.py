@@ -256,18 +256,28 @@ def camera_statistics(res: Residuals) -> dict[str, str]:
     return out
 
 
-def clock_offset(odometry: Track, truth: Track) -> float:
+def clock_offset(tracks: list[tuple[Track, Track]]) -> float:
     """The lag tau (s) at which the odometry's heading increments over the truth's intervals,
-    shifted by tau, correlate best with the truth's: truth(t) ~ odometry(t + tau). Negative:
-    the odometry is stamped ahead (it shows a turn before the truth does)."""
-    t0, t1 = truth.t[:-1], truth.t[1:]
-    ok = (t1 - t0 <= MAX_TRUTH_GAP_S) & (t0 > odometry.t[0] + 1.0) & (t1 < odometry.t[-1] - 1.0)
-    d_truth = np.diff(truth.pose[:, 2])[ok]
+    shifted by tau, correlate best with the truth's, over every (odometry, truth) pair of
+    `tracks`: truth(t) ~ odometry(t + tau). Negative: the odometry is stamped ahead (it
+    shows a turn before the truth does)."""
+    spans, d_truth = [], []
+    for odometry, truth in tracks:
+        t0, t1 = truth.t[:-1], truth.t[1:]
+        ok = t1 - t0 <= MAX_TRUTH_GAP_S
+        ok &= (t0 > odometry.t[0] + 1.0) & (t1 < odometry.t[-1] - 1.0)
+        spans.append((odometry, t0[ok], t1[ok]))
+        d_truth.append(np.diff(truth.pose[:, 2])[ok])
+    truth_turn = np.concatenate(d_truth)
     best, score = np.nan, -np.inf
     for lag in LAGS_S:
-        head = np.interp(np.r_[t0[ok], t1[ok]] + lag, odometry.t, odometry.pose[:, 2])
-        d_odom = head[ok.sum() :] - head[: ok.sum()]
-        corr = float(np.corrcoef(d_odom, d_truth)[0, 1]) if len(d_truth) > 2 else np.nan
+        d_odom = np.concatenate(
+            [
+                np.interp(t1 + lag, o.t, o.pose[:, 2]) - np.interp(t0 + lag, o.t, o.pose[:, 2])
+                for o, t0, t1 in spans
+            ]
+        )
+        corr = float(np.corrcoef(d_odom, truth_turn)[0, 1]) if len(truth_turn) > 2 else np.nan
         if corr > score:
             best, score = float(lag), corr
     return best
@@ -285,7 +295,9 @@ def _relative(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 def odometry_statistics(s: Survey) -> dict[str, str]:
     """Clock offset, error growth over WINDOWS_S and per-robot turn and forward scales."""
     out: dict[str, str] = {}
-    lags = {n: clock_offset(s.odometry[n], s.truth[n]) for n in s.truth if n in s.odometry}
+    pairs = {n: (s.odometry[n], s.truth[n]) for n in s.truth if n in s.odometry}
+    lags = {n: clock_offset([pair]) for n, pair in pairs.items()}
+    out["odometry clock lag, all robots (s)"] = f"{clock_offset(list(pairs.values())):+.2f}"
     out["odometry clock lag per robot (s)"] = " ".join(f"{v:+.2f}" for v in lags.values())
     heading: dict[float, list[np.ndarray]] = {w: [] for w in WINDOWS_S}
     shift: dict[float, list[np.ndarray]] = {w: [] for w in WINDOWS_S}
