@@ -79,8 +79,9 @@ class CameraEffects(_Strict):
 
     @classmethod
     def mrclam(cls) -> CameraEffects:
-        """The camera of the real multi-robot log (MRCLAM): a depth-like range 3 % long,
-        1 % noise per metre, Student-t bearings with a per-robot offset, a few misreads."""
+        """The camera of the real multi-robot log (MRCLAM) as measured against its truth
+        (docs/decisions.d/sim-real.md): a depth-like range a little long per robot, noise
+        growing with range, Student-t bearings with a per-robot offset, rare misreads."""
         return cls(
             range_scale=1.028,
             range_scale_spread=0.012,
@@ -114,5 +115,5 @@ class OdometryEffects(_Strict):
     @classmethod
     def mrclam(cls) -> OdometryEffects:
         """The odometry of the real multi-robot log: integrated commanded velocities that
-        lead the truth by a quarter second, turn scales a few percent off."""
+        lead the truth, each robot turning by a scale of its own."""
         return cls(clock_offset_s=0.25, turn_scale_spread=0.08)
