@@ -9,7 +9,13 @@ baseline. The default config is the point: the real data this stands for will be
 without tuning.
 
     python benchmarks/bench_arena.py [--seeds 1 2 3] [--minutes 15] [--attribute] [--stages]
-                                     [--set '{"slam": {"window": 0}}']
+                                     [--set '{"slam": {"window": 0}}'] [--profile realistic]
+                                     [--record LOG.jsonl]
+
+`--profile realistic` simulates the arena as the real multi-robot log measured
+(`ArenaConfig.realistic()`: its layout, drives, odometry and camera effects) instead of the
+scenario's defaults; the targets stay the same. `--record` writes the first seed's
+simulated log and stops (for `real_statistics.py --compare`).
 
 Each seed's line also gives the association's ceiling: the purity and completeness of a
 mapper that knew the true poses and landmarks and gave each frame's detections their
@@ -32,6 +38,7 @@ import argparse
 import json
 import time
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -42,6 +49,7 @@ from scipy.optimize import linear_sum_assignment
 from agrislam.config import AgrislamConfig
 from agrislam.evaluation.metrics import association_counts, evaluate
 from agrislam.geometry.se2 import wrap_angle
+from agrislam.io.sinks.jsonl import write_log
 from agrislam.records import Detections, Record, TruthObject, TruthPose
 from agrislam.run.pipeline import RunResult, run_survey
 from agrislam.sim.arena import ArenaSimulator
@@ -322,14 +330,18 @@ def deep_update(base: dict[str, Any], extra: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
-def simulate(seed: int, minutes: float, attribute: bool) -> tuple[list[Record], float]:
-    cfg = ArenaConfig.model_validate(
-        {
-            "seed": seed,
-            "driving": {"duration_s": 60.0 * minutes},
-            "attribute": {"enabled": attribute},
-        }
-    )
+def simulate(
+    seed: int, minutes: float, attribute: bool, profile: str = "default"
+) -> tuple[list[Record], float]:
+    changes = {
+        "seed": seed,
+        "driving": {"duration_s": 60.0 * minutes},
+        "attribute": {"enabled": attribute},
+    }
+    if profile == "realistic":
+        cfg = ArenaConfig.realistic(changes)
+    else:
+        cfg = ArenaConfig.model_validate(changes)
     start = time.perf_counter()
     records = list(ArenaSimulator(cfg).records())
     return records, time.perf_counter() - start
@@ -339,6 +351,15 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, nargs="+", default=[1, 2, 3])
     parser.add_argument("--minutes", type=float, default=15.0, help="survey length")
+    parser.add_argument(
+        "--profile",
+        choices=["default", "realistic"],
+        default="default",
+        help="the arena's defaults, or as the real multi-robot log measured",
+    )
+    parser.add_argument(
+        "--record", type=Path, metavar="LOG", help="write the first seed's log and stop"
+    )
     parser.add_argument(
         "--attribute", action="store_true", help="landmarks carry a noisy barcode id"
     )
@@ -356,9 +377,13 @@ def main() -> None:
         help="config changes applied to every variant (then not the default config)",
     )
     args = parser.parse_args()
+    if args.record is not None:
+        records, _ = simulate(args.seeds[0], args.minutes, args.attribute, args.profile)
+        console.print(f"{write_log(records, args.record)} records written to {args.record}")
+        return
     config = f"NOT the default config: {json.dumps(args.set)}" if args.set else "default config"
     table = Table(
-        title=f"Arena, {args.minutes:g} min, 5 robots, {config}"
+        title=f"Arena ({args.profile} profile), {args.minutes:g} min, 5 robots, {config}"
         + (", noisy landmark attribute" if args.attribute else "")
         + f" (landmarks matched within {MATCH_RADIUS} m)"
     )
@@ -367,7 +392,7 @@ def main() -> None:
     table.add_row(*(target for _, target in COLUMNS), style="dim")
     scores: dict[str, list[Score]] = {name: [] for name in args.variants}
     for seed in args.seeds:
-        records, gen_s = simulate(seed, args.minutes, args.attribute)
+        records, gen_s = simulate(seed, args.minutes, args.attribute, args.profile)
         frames = sum(isinstance(r, Detections) for r in records)
         purity, completeness = association_ceiling(records)
         console.print(

@@ -4,4 +4,6 @@ same records as a recorded survey log. `Simulator(SimConfig()).records()` is the
 records it.
 
 `ArenaSimulator(ArenaConfig()).records()` (arena.py) is the other scenario: robots driving
-random paths among point landmarks in a small indoor arena."""
+random paths among point landmarks in a small indoor arena; `ArenaConfig.realistic()` makes it
+behave like the real multi-robot log it stands for, with a real sensor's effects
+(`effects_config.py`), which the field simulator can have too."""

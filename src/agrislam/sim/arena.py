@@ -27,15 +27,22 @@ from agrislam.records import (
     TruthPose,
 )
 from agrislam.sim.arena_config import ArenaConfig
+from agrislam.sim.effects import CameraBias, blind_spells
 from agrislam.sim.landmarks import Landmarks, clustered_landmarks
 from agrislam.sim.odometry import OdometryTrack, drifting_odometry
 from agrislam.sim.path import frame_times
 from agrislam.sim.random_drive import TimedPath, random_drive
-from agrislam.sim.range_bearing import Observations, observe, read_ids
+from agrislam.sim.range_bearing import (
+    Observations,
+    observe,
+    read_by_chance,
+    read_ids,
+    unless_blind,
+)
 from agrislam.sim.simulator import time_order
 
 # independent random streams, so changing one part of the config leaves the others alone
-_LANDMARKS, _DRIVE, _ODOMETRY, _CAMERA, _ATTRIBUTE, _PHASE = 21, 22, 23, 24, 25, 26
+_LANDMARKS, _DRIVE, _ODOMETRY, _CAMERA, _ATTRIBUTE, _PHASE, _EFFECTS = 21, 22, 23, 24, 25, 26, 27
 # record kinds at one time stamp, in the order they are written
 _TRUTH, _ODOM, _FRAME = 0, 1, 2
 SENSOR = "camera"
@@ -54,6 +61,8 @@ class ArenaRobot:
     poses_frames: np.ndarray  # (f, 3) true poses there
     seen: Observations
     read: np.ndarray | None  # (n,) landmark index each detection's barcode read says
+    camera: CameraBias  # its range scale and bearing offset
+    blind: np.ndarray  # (k, 2) start and end of the camera's blind spells, s
 
 
 class ArenaSimulator:
@@ -93,18 +102,37 @@ class ArenaSimulator:
         )
         t_odom = frame_times(cfg.driving.duration_s, cfg.odometry.rate_hz)
         poses = drive.sample(t_odom)
-        track = drifting_odometry(poses, t_odom, cfg.odometry, self._rng(_ODOMETRY, k))
+        # odometry stamped ahead: its record at t carries the motion made by t + the offset
+        offset = cfg.odometry.effects.clock_offset_s
+        moved = drive.sample(t_odom + offset) if offset else poses
+        track = drifting_odometry(moved, t_odom, cfg.odometry, self._rng(_ODOMETRY, k))
         # the camera runs on its own clock: a random phase against the odometry
         phase = self._rng(_PHASE, k).uniform(0.0, 1.0 / cfg.camera.frame_rate_hz)
         t_frames = frame_times(t_odom[-1] - phase, cfg.camera.frame_rate_hz, phase)
         poses_frames = drive.sample(t_frames)
-        seen = observe(poses_frames, self.landmarks.xy, cfg.camera, self._rng(_CAMERA, k))
+        effects = self._rng(_EFFECTS, k)
+        camera = CameraBias.draw(cfg.camera.effects, effects)
+        blind = blind_spells(0.0, float(t_odom[-1]), cfg.camera.effects, effects)
+        seen = observe(
+            poses_frames, self.landmarks.xy, cfg.camera, self._rng(_CAMERA, k), camera, effects
+        )
+        seen = read_by_chance(unless_blind(seen, t_frames, blind), cfg.camera.p_detect, effects)
         read = None
         if cfg.attribute.enabled:
             rng = self._rng(_ATTRIBUTE, k)
-            read = read_ids(seen.landmark, len(self.landmarks), cfg.attribute, rng)
+            read = read_ids(seen.label, len(self.landmarks), cfg.attribute, rng)
         return ArenaRobot(
-            self.robot_names()[k], drive, t_odom, poses, track, t_frames, poses_frames, seen, read
+            self.robot_names()[k],
+            drive,
+            t_odom,
+            poses,
+            track,
+            t_frames,
+            poses_frames,
+            seen,
+            read,
+            camera,
+            blind,
         )
 
     def meta(self) -> Meta:
@@ -140,6 +168,7 @@ class ArenaSimulator:
                 yield TruthPose(t=float(t), robot=robot.name, pose=robot.poses[i])
             elif kind == _ODOM:
                 delta, cov = robot.odometry.record(i, standstill)
+                cov = cov if self.cfg.odometry.report_covariance else None
                 yield Odometry(t=float(t), robot=robot.name, delta=delta, cov=cov)
             else:
                 f = int(frames[int(k)][i])
@@ -162,6 +191,7 @@ class ArenaSimulator:
     def _detections(self, robot: ArenaRobot, f: int) -> tuple[Detection, ...]:
         cam, seen = self.cfg.camera, robot.seen
         ids = self.landmarks.ids
+        sigma_range, sigma_bearing = cam.reported_sigmas or (cam.sigma_range, cam.sigma_bearing)
         out = []
         for j in seen.in_frame(f):
             attributes = {}
@@ -174,10 +204,10 @@ class ArenaSimulator:
                 Detection(
                     range=float(seen.range[j]),
                     bearing=float(seen.bearing[j]),
-                    sigma_range=cam.sigma_range,
-                    sigma_bearing=cam.sigma_bearing,
+                    sigma_range=sigma_range,
+                    sigma_bearing=sigma_bearing,
                     attributes=attributes,
-                    truth_id=ids[int(seen.landmark[j])],
+                    truth_id=ids[int(seen.label[j])],
                 )
             )
         return tuple(out)

@@ -4,9 +4,11 @@ Every noise and probability is a value here, with the reasoning behind its defau
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+from agrislam.sim.effects_config import CameraEffects, OdometryEffects
 
 
 class _Strict(BaseModel):
@@ -154,6 +156,15 @@ class ArenaOdometry(_Strict):
         "heading: the heading 4 times too confident, as real drivers report it (with the "
         "unreported bias, more than that); the mapper has to estimate the scales itself",
     )
+    report_covariance: bool = Field(
+        True,
+        description="write each record's covariance; False: none, as a converted real log "
+        "that has none, so the mapper's configured default applies",
+    )
+    effects: OdometryEffects = Field(
+        default_factory=OdometryEffects,
+        description="a real robot's clock offset and turn scale (off by default)",
+    )
 
     @model_validator(mode="after")
     def _check(self) -> ArenaOdometry:
@@ -164,8 +175,8 @@ class ArenaOdometry(_Strict):
 
 class RangeBearingCamera(_Strict):
     """A camera aligned with the robot body frame that reads range and bearing off each
-    landmark in view (as MRCLAM's barcode reader does). Only range and field of view hide a
-    landmark; a few ranges are gross outliers."""
+    landmark in view (as MRCLAM's barcode reader does). Range and field of view hide a
+    landmark, and `p_detect` if below 1; a few ranges are gross outliers."""
 
     frame_rate_hz: float = Field(
         3.0,
@@ -176,6 +187,13 @@ class RangeBearingCamera(_Strict):
     fov_deg: float = Field(60.0, gt=0.0, le=360.0, description="horizontal field of view")
     min_range: float = Field(0.3, ge=0.0, description="m; nearer landmarks are out of focus")
     max_range: float = Field(5.0, gt=0.0, description="m; farther barcodes cannot be read")
+    p_detect: float = Field(
+        1.0,
+        gt=0.0,
+        le=1.0,
+        description="chance a landmark in range and view is read in a frame, each frame on its "
+        "own: a real barcode reader misses most of them",
+    )
     sigma_range: float = Field(0.13, ge=0.0, description="m, range noise std, reported as it is")
     sigma_bearing: float = Field(
         0.015, ge=0.0, description="rad, bearing noise std, reported as it is"
@@ -191,6 +209,17 @@ class RangeBearingCamera(_Strict):
         False,
         description="also write frames that see nothing; a converted real log lists "
         "measurements only, so by default a frame without a landmark in view is not written",
+    )
+    reported_sigmas: tuple[float, float] | None = Field(
+        None,
+        description="(m, rad) range and bearing std written with every detection, whatever "
+        "the noise: a real log's nominal data-sheet figures; None: sigma_range and "
+        "sigma_bearing, as they are",
+    )
+    effects: CameraEffects = Field(
+        default_factory=CameraEffects,
+        description="a real camera's depth-like range, range-dependent noise, heavy-tailed "
+        "and offset bearings, misreads and blind spells (off by default)",
     )
 
     @model_validator(mode="after")
@@ -231,3 +260,56 @@ class ArenaConfig(_Strict):
     odometry: ArenaOdometry = Field(default_factory=ArenaOdometry)
     camera: RangeBearingCamera = Field(default_factory=RangeBearingCamera)
     attribute: LandmarkAttribute = Field(default_factory=LandmarkAttribute)
+
+    @classmethod
+    def realistic(cls, changes: dict[str, Any] | None = None) -> ArenaConfig:
+        """The arena as the real multi-robot log (MRCLAM dataset 6) measured against its
+        truth: its layout of six tight clusters, slow drives, odometry of commanded
+        velocities without covariance, a longer and wider camera with the real one's effects,
+        nominal sigmas reported (docs/decisions.d/sim-real.md). `changes` go on top, section
+        by section, as `model_validate` would read them."""
+        return cls.model_validate(_merged(_realistic(), changes or {}))
+
+
+def _realistic() -> dict[str, Any]:
+    """The realistic profile's values, section by section."""
+    return {
+        "arena": {
+            "size": (5.0, 9.5),
+            "single_landmarks": 0,
+            "clusters": [3, 2, 3, 2, 3, 2],
+            "cluster_spacing": (0.18, 0.25),
+            "wall_margin": 0.5,
+        },
+        "driving": {"duration_s": 888.0, "speed": (0.06, 0.08), "wall_margin": 0.8},
+        "odometry": {
+            "rate_hz": 10.0,
+            "sigma_per_sqrt_s": (3e-3, 3e-3, 0.05),
+            "scale_bias": 0.03,
+            "report_covariance": False,
+            "effects": OdometryEffects.mrclam().model_dump(),
+        },
+        "camera": {
+            "frame_rate_hz": 4.2,
+            "p_detect": 0.25,
+            "fov_deg": 66.0,
+            "min_range": 0.9,
+            "max_range": 8.5,
+            "sigma_range": 0.01,
+            "sigma_bearing": 0.011,
+            "outlier_rate": 0.0,
+            "reported_sigmas": (0.15, 0.02),
+            "effects": CameraEffects.mrclam().model_dump(),
+        },
+    }
+
+
+def _merged(base: dict[str, Any], extra: dict[str, Any]) -> dict[str, Any]:
+    """`base` with `extra` written over it, section by section."""
+    out = dict(base)
+    for key, value in extra.items():
+        if isinstance(value, dict) and isinstance(out.get(key), dict):
+            out[key] = _merged(out[key], value)
+        else:
+            out[key] = value
+    return out

@@ -10,6 +10,7 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from agrislam.config import FieldSchema
 from agrislam.sim.arena_config import ArenaConfig  # noqa: F401 (re-exported for imports outside sim)
+from agrislam.sim.effects_config import CameraEffects, OdometryEffects
 from agrislam.sim.gnss_config import DistanceDrift, GnssSimConfig
 
 
@@ -198,6 +199,11 @@ class OdometryNoise(_Strict):
         description="reported covariance = report_scale^2 x the white noise "
         "actually added (the bias is not in it, as with real odometry)",
     )
+    effects: OdometryEffects = Field(
+        default_factory=OdometryEffects,
+        description="a real robot's clock offset and turn scale (off by default); the "
+        "forward scale per robot is drift.scale_sigma",
+    )
 
 
 class DetectorConfig(_Strict):
@@ -325,6 +331,12 @@ class DetectorConfig(_Strict):
         False,
         description="also give the combined detector label ('crop_small_healthy') and "
         "its score, as the experiments' YOLO model does (App. A)",
+    )
+    effects: CameraEffects = Field(
+        default_factory=CameraEffects,
+        description="a real camera's depth-like range and range scale per robot, noise growing "
+        "with range (on top of the depth noise), heavy-tailed and offset bearings, misread "
+        "plants and blind spells (off by default)",
     )
 
 

@@ -1,6 +1,8 @@
 """The simulated camera and detector (sec. 2.3, App. A): which plants a frame sees, where it
 puts them (depth noise growing with range, a depth bias towards the robot, small bearing
-noise), false detections, and semantic measurements with confusion and noisy confidences."""
+noise), false detections, and semantic measurements with confusion and noisy confidences;
+with its effects on, a real camera's depth-like range, heavy-tailed and offset bearings,
+misread plants (`effects.py`)."""
 
 from __future__ import annotations
 
@@ -10,6 +12,13 @@ from scipy.spatial import cKDTree
 from agrislam.config import DiscreteAttribute
 from agrislam.records import ContinuousMeasurement, Detection, DiscreteMeasurement, Measurement
 from agrislam.sim.config import DetectorConfig
+from agrislam.sim.effects import (
+    CameraBias,
+    bearing_noise,
+    measured_range,
+    misread_labels,
+    range_sigma,
+)
 from agrislam.sim.field import Field
 
 P_MIN, P_MAX = 0.001, 0.999  # a reported p of exactly 0 or 1 would freeze a belief (eq. 1)
@@ -28,8 +37,13 @@ class Detector:
             for name, spec in field.schema.discrete.items()
         }
 
-    def frame(self, pose: np.ndarray, rng: np.random.Generator) -> tuple[Detection, ...]:
+    def frame(
+        self, pose: np.ndarray, rng: np.random.Generator, camera: CameraBias | None = None
+    ) -> tuple[Detection, ...]:
+        """The detections of a frame at the true `pose`, by the robot's `camera` (its range
+        scale and bearing offset; none without effects)."""
         cfg = self.cfg
+        camera = camera or CameraBias()
         c, s = np.cos(pose[2]), np.sin(pose[2])
         cam = pose[:2] + np.array(
             [
@@ -46,13 +60,16 @@ class Detector:
         plants = np.concatenate([seen, twice])
         xy = np.vstack([self.field.xy[seen], twice_xy])
         r, b = self._polar(cam, pose[2], xy)
-        dets = self._measure(r, b, self.field.length[plants], rng, self._gross_errors(r, rng))
+        gross = self._gross_errors(r, rng)
+        dets = self._measure(r, b, self.field.length[plants], rng, gross, camera)
         sem = self._semantics(plants, r, rng)
+        # a misread detection is labelled (and so its truth_id) as another plant
+        label = misread_labels(plants, len(self.field.ids), cfg.effects, rng)
         out = [
             self._detection(dets[k], {n: v[k] for n, v in sem.items()}, str(self.field.ids[i]))
-            for k, i in enumerate(plants)
+            for k, i in enumerate(label)
         ]
-        out += self._clutter(rng, cfg.clutter_rate + cfg.clutter_fraction * len(seen))
+        out += self._clutter(rng, cfg.clutter_rate + cfg.clutter_fraction * len(seen), camera)
         return tuple(out[k] for k in rng.permutation(len(out)))
 
     def p_detect(self, r: np.ndarray) -> np.ndarray:
@@ -97,18 +114,23 @@ class Detector:
         length: np.ndarray,
         rng: np.random.Generator,
         gross: np.ndarray | float = 0.0,
+        camera: CameraBias | None = None,
     ) -> list[dict]:
         """Noisy positions in the robot base frame, with the uncertainty the detector
-        reports (that of a good detection, also for a gross range error `gross`)."""
-        cfg = self.cfg
+        reports (that of a good detection, also for a gross range error `gross`, and without
+        the `camera`'s effects)."""
+        cfg, fx = self.cfg, self.cfg.effects
+        camera = camera or CameraBias()
         bias = cfg.depth_bias_fraction * length  # mask averaging sees the near side (sec. 2.3)
         sd = self.sigma_depth(r)
-        r_m = np.maximum(r - bias + rng.normal(0.0, 1.0, len(r)) * sd + gross, 0.05)
+        noise = rng.normal(0.0, 1.0, len(r)) * range_sigma(r, sd, fx)
+        r_m = np.maximum(measured_range(r, b, fx, camera) - bias + noise + gross, 0.05)
         lateral = rng.normal(0.0, cfg.sigma_lateral_0, len(r))
         b_m = (
             b
-            + rng.normal(0.0, cfg.sigma_bearing, len(r))
+            + bearing_noise(len(r), cfg.sigma_bearing, fx, rng)
             + np.arctan2(lateral, np.maximum(r, 0.05))
+            + camera.bearing_offset
         )
         xy = np.asarray(cfg.camera_xy) + r_m[:, None] * np.column_stack([np.cos(b_m), np.sin(b_m)])
         # reported: a depth std that covers noise and bias, a lateral one from the bearing
@@ -170,7 +192,9 @@ class Detector:
         p = np.clip(p_true + rng.normal(0.0, cfg.p_noise, len(r)), P_MIN, P_MAX)
         return value, p
 
-    def _clutter(self, rng: np.random.Generator, rate: float) -> list[Detection]:
+    def _clutter(
+        self, rng: np.random.Generator, rate: float, camera: CameraBias | None = None
+    ) -> list[Detection]:
         """False detections of nothing (a leaf, a shadow): Poisson with mean `rate` per
         frame, anywhere in view, with random semantics reported as confidently as real ones."""
         cfg = self.cfg
@@ -180,7 +204,7 @@ class Detector:
         r = np.sqrt(rng.uniform(cfg.min_range**2, cfg.max_range**2, n))
         b = rng.uniform(-self.half_fov, self.half_fov, n)
         length = rng.uniform(self.field.length.min(), self.field.length.max(), n)
-        dets = self._measure(r, b, length, rng)
+        dets = self._measure(r, b, length, rng, camera=camera)
         schema = self.field.schema
         out = []
         for k in range(n):

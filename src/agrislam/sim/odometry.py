@@ -1,6 +1,7 @@
 """Wheel/leg odometry of a simulated robot: the true motion increments with white noise per
 step and a slowly wandering heading bias (the field), or random-walk noise with a scale
-and heading bias per robot (the arena), and the trajectory dead reckoning makes of them."""
+and heading bias per robot (the arena), either with a turn scale of its own if its effects
+say so, and the trajectory dead reckoning makes of them."""
 
 from __future__ import annotations
 
@@ -11,6 +12,7 @@ import numpy as np
 from agrislam.geometry.se2 import wrap_angle
 from agrislam.sim.arena_config import ArenaOdometry
 from agrislam.sim.config import OdometryNoise
+from agrislam.sim.effects import turn_scale
 
 
 @dataclass(frozen=True, slots=True)
@@ -96,6 +98,7 @@ def noisy_odometry(
     measured[:, 2] = wrap_angle(measured[:, 2])
     if noise.drift.scale_sigma > 0.0:
         measured[:, :2] *= 1.0 + rng.normal(0.0, noise.drift.scale_sigma)
+    measured[:, 2] = _turned(measured[:, 2], true[:, 2], turn_scale(noise.effects, rng))
     cov = np.zeros((len(true), 3, 3))
     idx = np.arange(3)
     cov[:, idx, idx] = (noise.report_scale * sigma) ** 2
@@ -122,9 +125,9 @@ def drifting_odometry(
     poses: np.ndarray, t: np.ndarray, noise: ArenaOdometry, rng: np.random.Generator
 ) -> OdometryTrack:
     """What a robot's wheel odometry reports while it follows the true poses (m, 3) at times
-    t: random-walk noise, a distance scale error and a heading bias per metre of its own (both
-    drawn here, once), and a covariance that reports the white noise by `report_sigma_factor`
-    (and the biases not at all)."""
+    t: random-walk noise, a distance scale error, a heading bias per metre and a turn scale of
+    its own (drawn here, once), and a covariance that reports the white noise by
+    `report_sigma_factor` (and the biases not at all)."""
     true = increments(poses)
     var = random_walk_variance(true, np.diff(t), noise)
     scale = 1.0 + rng.normal(0.0, noise.scale_bias)
@@ -132,7 +135,15 @@ def drifting_odometry(
     measured = true + rng.normal(0.0, 1.0, true.shape) * np.sqrt(var)
     measured[:, :2] *= scale
     measured[:, 2] = wrap_angle(measured[:, 2] + heading_bias * np.hypot(true[:, 0], true[:, 1]))
+    measured[:, 2] = _turned(measured[:, 2], true[:, 2], turn_scale(noise.effects, rng))
     cov = np.zeros((len(true), 3, 3))
     idx = np.arange(3)
     cov[:, idx, idx] = var * np.square(noise.report_sigma_factor)
     return OdometryTrack(delta=measured, cov=cov, dead_reckoned=integrate(poses[0], measured))
+
+
+def _turned(measured: np.ndarray, true: np.ndarray, scale: float) -> np.ndarray:
+    """Measured heading increments with the robot's turn `scale` on the true turn."""
+    if scale == 1.0:
+        return measured
+    return wrap_angle(measured + (scale - 1.0) * true)

@@ -22,6 +22,7 @@ from agrislam.records import (
 )
 from agrislam.sim.config import SimConfig
 from agrislam.sim.detector import Detector
+from agrislam.sim.effects import CameraBias, blind_spells, blinded
 from agrislam.sim.field import Field, make_field
 from agrislam.sim.gnss import every_nth, robot_fixes, survey_anchor, with_fixes
 from agrislam.sim.odometry import OdometryTrack, integrate, noisy_odometry
@@ -30,7 +31,7 @@ from agrislam.sim.path import SurveyPath, frame_times, survey_path
 # record kinds at one time stamp, in the order they are written
 _TRUTH, _ODOM, _FRAME = 0, 1, 2
 # independent random streams, so changing one part of the config leaves the others alone
-_FIELD, _ODOMETRY, _DETECTOR, _GNSS = 11, 12, 13, 14
+_FIELD, _ODOMETRY, _DETECTOR, _GNSS, _EFFECTS = 11, 12, 13, 14, 15
 
 
 @dataclass(frozen=True, slots=True)
@@ -101,7 +102,10 @@ class Simulator:
             if t_odom[-1] < t_frames[-1]:  # odometry must cover the last frame
                 t_odom = np.append(t_odom, t_frames[-1])
         poses_odom = path.sample(t_odom, cfg.path.speed)
-        track = noisy_odometry(poses_odom, t_odom, cfg.odometry, self._rng(_ODOMETRY, day, robot))
+        # odometry stamped ahead: its record at t carries the motion made by t + the offset
+        offset = cfg.odometry.effects.clock_offset_s
+        moved = path.sample(t_odom + offset, cfg.path.speed) if offset else poses_odom
+        track = noisy_odometry(moved, t_odom, cfg.odometry, self._rng(_ODOMETRY, day, robot))
         return RobotSurvey(
             name=name or self.robot_names()[robot],
             path=path,
@@ -152,6 +156,7 @@ class Simulator:
         detector = Detector(field, self.cfg.detector)
         surveys = [self.survey(day, k, name) for k, name in enumerate(names)]
         rngs = [self._rng(_DETECTOR, day, k) for k in range(len(surveys))]
+        cameras, blind = self._cameras(day, surveys)
         ev = time_order(
             [(np.union1d(sv.t_odom, sv.t_frames), sv.t_odom, sv.t_frames) for sv in surveys]
         )
@@ -163,8 +168,23 @@ class Simulator:
             elif kind == _ODOM:
                 yield self._odometry(sv, i, odom_pose[k][i])
             else:
-                dets = detector.frame(sv.poses_frames[i], rngs[k])
+                pose = sv.poses_frames[i]
+                dets = () if blind[k][i] else detector.frame(pose, rngs[k], cameras[k])
                 yield Detections(t=float(t), robot=sv.name, objects=dets, sensor="front")
+
+    def _cameras(
+        self, day: int, surveys: list[RobotSurvey]
+    ) -> tuple[list[CameraBias], list[np.ndarray]]:
+        """Each robot's camera (range scale, bearing offset) and which of its frames fall in
+        a blind spell, drawn from a stream of their own."""
+        fx = self.cfg.detector.effects
+        cameras, blind = [], []
+        for k, sv in enumerate(surveys):
+            rng = self._rng(_EFFECTS, day, k)
+            cameras.append(CameraBias.draw(fx, rng))
+            spells = blind_spells(float(sv.t_frames[0]), float(sv.t_frames[-1]), fx, rng)
+            blind.append(blinded(sv.t_frames, spells))
+        return cameras, blind
 
     def _georeferenced(self, day: int, names: list[str], records: Iterator[Record]):
         """The day's records with the GNSS receiver's fixes among them, if it has one."""
