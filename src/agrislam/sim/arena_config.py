@@ -266,7 +266,7 @@ class ArenaConfig(_Strict):
         """The arena as the real multi-robot log (MRCLAM dataset 6) measured against its
         truth: its layout of six tight clusters, slow drives, odometry of commanded
         velocities without covariance, a longer and wider camera with the real one's effects,
-        nominal sigmas reported (docs/decisions.d/sim-real.md). `changes` go on top, section
+        nominal sigmas reported (docs/decisions.md). `changes` go on top, section
         by section, as `model_validate` would read them."""
         return cls.model_validate(_merged(_realistic(), changes or {}))
 

@@ -80,7 +80,7 @@ class CameraEffects(_Strict):
     @classmethod
     def mrclam(cls) -> CameraEffects:
         """The camera of the real multi-robot log (MRCLAM) as measured against its truth
-        (docs/decisions.d/sim-real.md): a depth-like range a little long per robot, noise
+        (docs/decisions.md): a depth-like range a little long per robot, noise
         growing with range, Student-t bearings with a per-robot offset, rare misreads."""
         return cls(
             range_scale=1.028,
