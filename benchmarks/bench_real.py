@@ -56,15 +56,13 @@ def default_row(survey: Survey, reference: Reference | None) -> Row:
     return Row.of(metrics, landmarks, result.wall_seconds)
 
 
-def compare(
-    log: Path, t_max: float | None, targets: list[Check], with_reference: bool
-) -> tuple[str, Row, Row | None, list[Check]]:
-    """One log and span: agrislam's row and the reference's."""
+def compare(log: Path, t_max: float | None, with_reference: bool) -> tuple[str, Row, Row | None]:
+    """One log and span: its label, agrislam's row and the reference's."""
     survey = read_survey(log, t_max)
     reference = solve_reference(survey, log=lambda _: None) if with_reference else None
     default = default_row(survey, reference)
     label = f"{survey.name}, {survey.span}"
-    return label, default, reference.row(survey) if reference is not None else None, targets
+    return label, default, reference.row(survey) if reference is not None else None
 
 
 def main() -> None:
@@ -77,7 +75,7 @@ def main() -> None:
     parser.add_argument("--no-reference", action="store_true", help="agrislam's rows only")
     parser.add_argument("--skip-victoria-park", action="store_true")
     args = parser.parse_args()
-    cases = []
+    cases: list[tuple[Path, float | None, list[Check]]] = []
     for span in args.spans:
         t_max = None if span == "whole" else float(span)
         targets = LANDMARK_LOG_TARGETS if t_max is None else []
@@ -91,7 +89,7 @@ def main() -> None:
     )
     verdicts = []
     for log, t_max, targets in cases:
-        label, default, reference, targets = compare(log, t_max, targets, not args.no_reference)
+        label, default, reference = compare(log, t_max, not args.no_reference)
         out.add_row(*row_cells(label, "agrislam", default))
         if reference is not None:
             out.add_row(*row_cells("", "reference", reference))
