@@ -27,6 +27,7 @@ from agrislam.io.sinks.run_folder import RunFolder
 from agrislam.io.sources import Source, SourceError, open_source
 from agrislam.records import Record
 from agrislam.run.checkpoint import Checkpoints, InputFingerprint, config_identity
+from agrislam.run.health import print_health
 from agrislam.run.pipeline import RunError, RunResult, describe, run_survey
 from agrislam.world import WorldModel
 
@@ -543,6 +544,7 @@ def _summary(result: RunResult, out: Path) -> None:
         factors = ", ".join(f"{k} x{v:.2f}" for k, v in noise["sigma_factors"].items())
         table.add_row("noise scales", f"{factors} ({noise['pairs_used']} pairs of sightings)")
     console.print(table)
+    print_health(result.health, console)
     for issue, count in sorted(result.issues.items()):
         console.print(f"[yellow]{count} x {issue}[/]")
     if result.metrics is not None:

@@ -43,7 +43,9 @@ STAGES = (
 @dataclass(slots=True)
 class StepReport:
     """What one frame did: the object each detection went to (after merges of this
-    step), which objects are new, and what maintenance changed."""
+    step), which objects are new, what maintenance changed, the NIS of the mapped
+    detections the association put on objects (NaN for the others) and whether the frame
+    rejoined the map."""
 
     t: float
     robot: str
@@ -51,6 +53,8 @@ class StepReport:
     new_ids: np.ndarray
     maintenance: MaintenanceResult
     seconds: dict[str, float]
+    nis: np.ndarray = dataclasses.field(default_factory=lambda: np.empty(0))
+    rejoined: bool = False
 
 
 class WorldModel:
@@ -181,7 +185,8 @@ class WorldModel:
         with timer("maintain"):  # sec. 2.6.3
             variance = float(s.estimators.noise.scale.variance[0])
             result = s.maintainer.maintain(match, touched, dropped, variance)
-        report = StepReport(t, robot, self.resolve(match.report_ids()), match.new_ids, result, {})
+        ids = self.resolve(match.report_ids())
+        report = StepReport(t, robot, ids, match.new_ids, result, {}, match.nis, match.rejoined)
         report.seconds = timer.close_step()
         return report
 

@@ -1,3 +1,4 @@
+import dataclasses
 import json
 import math
 
@@ -315,3 +316,23 @@ def test_a_steps_time_is_the_sum_of_its_stages():
     snap = _snapshot(_truth(), extra={"step_times": times})
     np.testing.assert_allclose(snap.step_seconds(), [0.011, 0.032])
     assert len(_snapshot(_truth()).step_seconds()) == 0
+
+
+def test_objects_within_fixed_radii_are_counted_one_to_one():
+    truth = [dataclasses.replace(t, xy=np.array([2.0 * i, 0.0])) for i, t in enumerate(_truth(3))]
+    # 0.1 m, 0.2 m and 0.4 m off, and a second object 0.05 m off the first landmark
+    est = np.array([[0.1, 0.0], [2.0, 0.2], [4.4, 0.0], [0.0, 0.05]])
+    within = evaluate(_snapshot(truth, est), truth)["objects"]["within"]
+    assert [(w["radius"], w["matched"]) for w in within] == [(0.3, 2), (0.15, 1)]
+    assert within[0]["position_rms"] == pytest.approx(math.sqrt((0.05**2 + 0.2**2) / 2))
+    assert within[1]["position_rms"] == pytest.approx(0.05)
+
+
+def test_the_trajectorys_halves_are_scored_apart():
+    t, poses = _track()
+    drifted = poses.copy()
+    drifted[t > 4.5, 1] += 0.2  # the second half of 0-9 s, 0.2 m off
+    m = evaluate(_snapshot(_truth(), traj=drifted), _truth(), _truth_poses())["trajectory"]
+    assert m["optimised"]["rms_position_first_half"] == pytest.approx(0.0)
+    assert m["optimised"]["rms_position_second_half"] == pytest.approx(0.2)
+    assert m["dead_reckoning"]["rms_position_second_half"] == pytest.approx(0.0)

@@ -62,11 +62,11 @@ def log(tmp_path_factory) -> Path:
 
 @pytest.fixture(scope="module")
 def uninterrupted(log, tmp_path_factory):
-    """The map of the survey run to its end with checkpoints."""
+    """The survey run to its end with checkpoints."""
     out = tmp_path_factory.mktemp("uninterrupted")
     result = _run(log, out, config())
     assert result.checkpoints["taken"] == 178 // EVERY
-    return result.snapshot
+    return result
 
 
 def _checkpoints(log: Path, out: Path, cfg: AgrislamConfig) -> Checkpoints:
@@ -159,8 +159,8 @@ def test_a_run_killed_with_sigkill_leaves_a_readable_checkpoint_and_resumes_to_t
     assert len(load_map(out / "map.sqlite").objects) > 10  # the map of the last checkpoint
     result = _run(log, out, config(), resume=True)
     assert result.checkpoints["resumed_at_record"] >= 2 * EVERY
-    _same_map(uninterrupted, result.snapshot)
-    _same_map(uninterrupted, load_map(out / "map.sqlite"))
+    _same_map(uninterrupted.snapshot, result.snapshot)
+    _same_map(uninterrupted.snapshot, load_map(out / "map.sqlite"))
     assert read_checkpoint(out / "map.sqlite") is None  # a finished run's map keeps none
 
 
@@ -191,7 +191,8 @@ def test_a_stopped_run_resumes_to_the_same_map(log, uninterrupted, tmp_path):
     entries = read_checkpoint(tmp_path / "map.sqlite")
     assert entries is not None and 0 < int(entries["position"]) < 300
     result = _run(log, tmp_path, config(), resume=True)
-    _same_map(uninterrupted, result.snapshot)
+    _same_map(uninterrupted.snapshot, result.snapshot)
+    assert result.health.rows() == uninterrupted.health.rows()  # kept in the checkpoint
 
 
 def test_resume_refuses_a_checkpoint_of_another_log_or_config(log, tmp_path):
@@ -221,7 +222,7 @@ def test_resume_without_a_checkpoint_starts_from_the_first_record(log, uninterru
     out = tmp_path / "fresh"
     result = _run(log, out, config(), resume=True)
     assert result.checkpoints["resumed_at_record"] is None
-    _same_map(uninterrupted, result.snapshot)
+    _same_map(uninterrupted.snapshot, result.snapshot)
     with pytest.raises(ResumeError, match="finished run, with no checkpoint"):
         _run(log, out, config(), resume=True)
 
@@ -274,7 +275,7 @@ def test_a_checkpoint_that_cannot_be_written_is_an_issue_and_the_run_goes_on(
     monkeypatch.setattr("agrislam.run.checkpoint.write_checkpoint", full_disk)
     result = _run(log, tmp_path, config())
     assert result.issues["checkpoint not written: OperationalError: database or disk is full"]
-    _same_map(uninterrupted, result.snapshot)
+    _same_map(uninterrupted.snapshot, result.snapshot)
 
 
 def test_a_state_that_cannot_be_saved_turns_checkpoints_off_and_the_run_goes_on(

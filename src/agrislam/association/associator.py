@@ -10,6 +10,7 @@ from collections import Counter
 import numpy as np
 
 from agrislam.association.gnn import (
+    accepted_nis,
     assign,
     association_matrix,
     innovation_covariance,
@@ -56,7 +57,7 @@ class Associator:
         """Where each detection of the robot's frame goes; the range errors of mapped
         landmarks are reported as theirs and not mapped."""
         chain, robot_index = self.frontend.robots[robot], self.frontend.robot_index(robot)
-        object_ids = self._gnn(robot, robot_index, chain, placed, t)
+        object_ids, nis, rejoined = self._gnn(robot, robot_index, chain, placed, t)
         pose, objects = self.backend.current_pose(robot), self.map.objects
         index = self.map.index
         on_ray = self.outliers.of_new_objects(
@@ -66,13 +67,15 @@ class Associator:
         if not mapped.all():  # gross range errors: reported as their objects, not mapped
             self.issues[RANGE_ERRORS] += int((~mapped).sum())
             detections = [d for d, m in zip(detections, mapped, strict=True) if m]
-            placed, object_ids = placed.subset(mapped), object_ids[mapped]
+            placed, object_ids, nis = placed.subset(mapped), object_ids[mapped], nis[mapped]
         unassigned = np.flatnonzero(object_ids < 0)
         new_ids = self.map.add(placed.xy[unassigned], t, self.tentative, self.backend)
         object_ids[unassigned] = new_ids
         self.outliers.born(object_ids[on_ray[mapped] >= 0], t, objects)
         ids, reach = (object_ids, new_ids, on_ray, mapped), self.reach(placed)
-        return FrameMatch(robot, robot_index, chain, t, pose, detections, placed, *ids, reach)
+        return FrameMatch(
+            robot, robot_index, chain, t, pose, detections, placed, *ids, reach, nis, rejoined
+        )
 
     def reach(self, placed: PlacedDetections) -> float:
         """The farthest an object may be from a detection and still be associated (none
@@ -92,18 +95,19 @@ class Associator:
         chain: OdometryChain,
         placed: PlacedDetections,
         t: float,
-    ) -> np.ndarray:
+    ) -> tuple[np.ndarray, np.ndarray, bool]:
         """GNN over the association matrix of gated candidates (sec. 2.4), then the lost
-        robot's rejoin; -1 = new."""
+        robot's rejoin: each detection's object (-1 = new), the NIS of those the GNN put on
+        objects (NaN for the others) and whether the frame rejoined the map."""
         cfg, d_inter, backend = self.config, self.spacing.d_inter, self.backend
         if len(placed) == 0:
-            return np.empty(0, dtype=int)
+            return np.empty(0, dtype=int), np.empty(0), False
         candidates = self.map.index.query(placed.xy, self.reach(placed))
         if len(candidates) == 0:
-            return np.full(len(placed), -1)
+            return np.full(len(placed), -1), np.full(len(placed), np.nan), False
         object_cov = backend.object_covariances(candidates)  # may solve: then positions
         object_xy = backend.object_positions(candidates)
-        innovation = None
+        innovation = own = None
         if cfg.innovation_gate:
             # what the robot's drift since it last saw each candidate adds (geometry/drift.py)
             then = self.map.objects.last_seen(candidates, robot_index)
@@ -118,5 +122,9 @@ class Associator:
         )
         chosen = assign(matrix)
         ids = np.where(chosen >= 0, candidates[np.maximum(chosen, 0)], -1)
+        nis = accepted_nis(placed, chosen, object_xy, object_cov, own)
         pose = backend.current_pose(robot)
-        return self.rejoiner.rejoin(pose[:2], placed, ids, t, backend)
+        rejoined = self.rejoiner.rejoin(pose[:2], placed, ids, t, backend)
+        moved = rejoined != ids
+        nis[moved] = np.nan  # placed by the rejoin, not the GNN
+        return rejoined, nis, bool(moved.any())

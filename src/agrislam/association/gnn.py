@@ -104,6 +104,30 @@ def innovation_covariance(
     return np.where(tighter[..., None, None], relative, absolute)
 
 
+def accepted_nis(
+    detections: PlacedDetections,
+    chosen: np.ndarray,
+    object_xy: np.ndarray,
+    object_cov: np.ndarray,
+    own: np.ndarray | None = None,
+) -> np.ndarray:
+    """(m,) the normalised innovation squared e^T S^-1 e of each detection the GNN put on a
+    candidate (`chosen`, as `assign` returns it), NaN for the others: S the detection's own
+    innovation covariance `own` (m, k, 2, 2) where the gate compared the whole innovation,
+    else the absolute bound K_n + R_m + the pose marginal. For a consistent map it follows
+    chi2 with 2 dof: the run's health reads it."""
+    nis = np.full(len(chosen), np.nan)
+    rows = np.flatnonzero(chosen >= 0)
+    cols = chosen[rows]
+    if own is not None:
+        s = own[rows, cols]
+    else:
+        pose_cov = detections.pose_cov[rows] if detections.pose_cov is not None else 0.0
+        s = object_cov[cols] + detections.cov[rows] + pose_cov
+    nis[rows] = mahalanobis(object_xy[cols] - detections.xy[rows], s)
+    return nis
+
+
 def rivals_on_one_metric(
     innovation: np.ndarray, detection_xy: np.ndarray, object_xy: np.ndarray, d_inter: float
 ) -> np.ndarray:

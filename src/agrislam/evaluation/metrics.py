@@ -22,6 +22,10 @@ from agrislam.geometry.se2 import rotation, wrap_angle
 from agrislam.records import TruthObject, TruthPose
 from agrislam.snapshot import MapSnapshot, Trajectory
 
+# m: radii a map's objects are counted within of their plants or landmarks, one to one (a
+# user's fixed yardsticks, beside the matching radius that follows the plant spacing)
+WITHIN_M = (0.3, 0.15)
+
 # ------------------------------------------------------------------------------ geometry
 
 
@@ -123,15 +127,26 @@ def _paired_poses(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Estimated poses inside the truth's time span and the true poses at their times."""
     t_truth, truth = track
-    inside = (est.t >= t_truth[0]) & (est.t <= t_truth[-1])
+    inside = _inside(est, t_truth)
     return est.poses[inside], truth_at(t_truth, truth, est.t[inside])
+
+
+def _paired_times(est: Trajectory, track: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+    """The times of `_paired_poses`."""
+    return est.t[_inside(est, track[0])]
+
+
+def _inside(est: Trajectory, t_truth: np.ndarray) -> np.ndarray:
+    return (est.t >= t_truth[0]) & (est.t <= t_truth[-1])
 
 
 def trajectory_errors(
     trajectories: Mapping[str, Trajectory], tracks: Mapping[str, tuple[np.ndarray, np.ndarray]]
 ) -> dict[str, Any]:
-    """RMS position and heading error over all robots, and per robot."""
-    per_robot, pos, head = {}, [], []
+    """RMS position and heading error over all robots, and per robot; the position's also
+    over the first and the second half of the survey's time (of the poses compared): a map
+    that degrades over time has the second larger."""
+    per_robot, pos, head, times = {}, [], [], []
     for robot, est in sorted(trajectories.items()):
         if robot not in tracks or len(est.t) == 0:
             continue
@@ -140,9 +155,19 @@ def trajectory_errors(
         per_robot[robot] = {"rms_position": _rms(dp), "rms_heading": _rms(dh), "n": len(dp)}
         pos.append(dp)
         head.append(dh)
+        times.append(_paired_times(est, tracks[robot]))
     dp = np.concatenate(pos) if pos else np.zeros(0)
     dh = np.concatenate(head) if head else np.zeros(0)
-    return {"rms_position": _rms(dp), "rms_heading": _rms(dh), "n": len(dp), "per_robot": per_robot}
+    t = np.concatenate(times) if times else np.zeros(0)
+    second = t > 0.5 * (t.min() + t.max()) if len(t) else np.zeros(0, bool)
+    return {
+        "rms_position": _rms(dp),
+        "rms_heading": _rms(dh),
+        "rms_position_first_half": _rms(dp[~second]),
+        "rms_position_second_half": _rms(dp[second]),
+        "n": len(dp),
+        "per_robot": per_robot,
+    }
 
 
 def association_scores(associations: Sequence[tuple[str | None, int]]) -> dict[str, Any]:
@@ -189,6 +214,19 @@ def _group_max_and_size(group: np.ndarray, counts: np.ndarray) -> tuple[np.ndarr
     largest = np.zeros(len(size), dtype=counts.dtype)
     np.maximum.at(largest, inverse, counts)
     return largest, size
+
+
+def within_counts(
+    est_xy: np.ndarray, truth_xy: np.ndarray, radii: Iterable[float] = WITHIN_M
+) -> list[dict[str, Any]]:
+    """For each radius: how many truths have an object within it, one to one
+    (`match_objects`), and the RMS distance of those pairs."""
+    out = []
+    for radius in radii:
+        ei, ti = match_objects(est_xy, truth_xy, radius)
+        rms = _rms(np.linalg.norm(est_xy[ei] - truth_xy[ti], axis=1))
+        out.append({"radius": float(radius), "matched": len(ti), "position_rms": rms})
+    return out
 
 
 def _attribute_scores(
@@ -285,13 +323,15 @@ def evaluate(
     radius: float | None = None,
     min_plant_distance: float | None = None,
     align: bool = False,
+    within: Iterable[float] = WITHIN_M,
 ) -> dict[str, Any]:
     """Every metric of the map against the truth, as a JSON-ready dict.
 
     The truth: its objects as records or a `TruthObjects` table (a later record of an id
     replaces it: a later survey day's truth), its poses as records or each robot's true
     trajectory in time order. `associations`: (truth_id, final object id) of each
-    detection. `radius`: matching radius, default half the minimum plant distance."""
+    detection. `radius`: matching radius, default half the minimum plant distance;
+    `within`: radii of `within_counts`, the objects' fixed yardsticks."""
     truth = (
         truth_objects if isinstance(truth_objects, TruthObjects) else TruthObjects.of(truth_objects)
     )
@@ -347,6 +387,7 @@ def evaluate(
         "false_objects": int((~near_truth).sum()),
         "position_rms": _rms(np.linalg.norm(est_xy[ei] - truth_xy[ti], axis=1)),
         "match_radius": radius,
+        "within": within_counts(est_xy, truth_xy, within),
     }
     metrics: dict[str, Any] = {
         "objects": objects,
@@ -411,6 +452,9 @@ def print_metrics(metrics: Mapping[str, Any], console: Any = None) -> None:
         table.add_row("duplicates", duplicates)
         table.add_row("false objects", str(o["false_objects"]))
         table.add_row("object position RMS", _fmt(o["position_rms"], " m"))
+        for w in o.get("within", []):
+            rms = _fmt(w["position_rms"], " m")
+            table.add_row(f"within {w['radius']:g} m", f"{w['matched']} (RMS {rms})")
         for name, a in metrics.get("attributes", {}).items():
             if "accuracy" in a:
                 table.add_row(f"{name} accuracy", _fmt(a["accuracy"], pct=True))
@@ -440,4 +484,7 @@ def print_metrics(metrics: Mapping[str, Any], console: Any = None) -> None:
             None if x is None else math.degrees(x) for x in (opt["rms_heading"], dr["rms_heading"])
         ]
         t.add_row("heading", *(_fmt(h, " deg") for h in heading))
+        for half in ("first", "second"):
+            key = f"rms_position_{half}_half"
+            t.add_row(f"position, {half} half", _fmt(opt.get(key), " m"), _fmt(dr.get(key), " m"))
         console.print(t)

@@ -4,7 +4,7 @@ objects they went to (sec. 2.4): what the stages after the front end take."""
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -55,6 +55,9 @@ class FrameMatch:
     reported: np.ndarray  # (all,) each detection's object: range errors their landmark's
     mapped: np.ndarray  # (all,) which detections are mapped
     reach: float  # m, the farthest an object could be from a detection and be associated
+    # (m,) the NIS of each mapped detection the GNN put on an object (NaN: new, rejoined)
+    nis: np.ndarray = field(default_factory=lambda: np.empty(0))
+    rejoined: bool = False  # the frame was put back on settled objects (association/rejoin.py)
 
     @property
     def attributes(self) -> list:

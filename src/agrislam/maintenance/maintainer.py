@@ -27,6 +27,7 @@ from agrislam.snapshot import STATUS_MERGED, STATUS_PRUNED
 class MaintenanceResult:
     merged: list[tuple[int, int]] = field(default_factory=list)  # (keep, drop)
     pruned: list[int] = field(default_factory=list)
+    loops: int = 0  # loops closed (association/loop_closure.py): their merges are in `merged`
 
 
 class Maintainer:
@@ -83,6 +84,7 @@ class Maintainer:
         robot = match.robot_index
         loop = self.loops.pairs(robot, match.t, objects, self.backend, noise_variance)
         result.merged += self._merge(loop)
+        result.loops = int(bool(loop))
         result.pruned += self._prune(objects.active(dropped).tolist())
         return result
 

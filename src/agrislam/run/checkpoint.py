@@ -29,6 +29,7 @@ from typing import Any
 
 from agrislam.config import AgrislamConfig, CheckpointConfig
 from agrislam.io.sinks.sqlite import read_checkpoint, write_checkpoint
+from agrislam.run.health import Health
 from agrislam.world import WorldModel
 
 # raised whenever the state changes shape, so that an older checkpoint is refused, not misread
@@ -37,8 +38,9 @@ from agrislam.world import WorldModel
 # backend/key_table.py; 5: the truth as arrays, evaluation/ground_truth.py; 6: tables grown by
 # growing.Doubling; 7: backend/incremental/marginal_cache.py, the factor store's rows in use alone;
 # 8: the world's maintenance.Merger; 9: the Merger's sets of objects detected together;
-# 10: the world's rejoin.Rejoiner; 13: the objects RangeOutliers watches and has judged)
-FORMAT = b"agrislam-checkpoint 14"
+# 10: the world's rejoin.Rejoiner; 13: the objects RangeOutliers watches and has judged;
+# 15: the run's health, run/health.py)
+FORMAT = b"agrislam-checkpoint 15"
 # the modules a checkpoint's objects may come from
 TRUSTED_MODULES = {"agrislam", "numpy", "collections", "copyreg", "builtins", "pydantic"}
 TRUSTED_MODULES |= {"pydantic_core", "scipy"}
@@ -55,14 +57,15 @@ class ResumeError(ValueError):
 @dataclass(slots=True)
 class RunState:
     """A run after the first `position` records of its stream (synchronised, labels split):
-    the world model, the truth gathered aside (pipeline.Truth), records mapped by kind and
-    frames mapped."""
+    the world model, the truth gathered aside (pipeline.Truth), records mapped by kind,
+    frames mapped and the map's health so far (run/health.py)."""
 
     world: WorldModel
     truth: Any
     counts: Counter[str] = field(default_factory=Counter)
     n_frames: int = 0
     position: int = 0
+    health: Health = field(default_factory=Health)
 
 
 def dump_state(state: RunState) -> bytes:

@@ -37,6 +37,7 @@ from agrislam.io.sources.sync import synchronise
 from agrislam.records import Detections, Meta, Record, TruthObject, TruthPose
 from agrislam.run.checkpoint import FORMAT, Checkpoints, RunState, adopt
 from agrislam.run.collector import PacedCollector, release_free_heap
+from agrislam.run.health import Health
 from agrislam.run.season import SeasonRun
 from agrislam.run.season_outputs import season_outputs
 from agrislam.semantics.heuristic import interest_surface
@@ -109,6 +110,7 @@ class RunResult:
     gnss: dict[str, int] = field(default_factory=dict)  # fixes used and rejected
     checkpoints: dict[str, Any] | None = None  # resumed at which record, checkpoints taken
     season: dict[str, Any] | None = None  # a survey that continued a saved map
+    health: Health = field(default_factory=Health)  # what the map did, minute by minute
 
     @property
     def usable(self) -> bool:
@@ -207,7 +209,7 @@ def _run(
             gated = synced if season is None else season.gate(synced, world)
             for position, record in enumerate(_split_labels(gated, world, issues), 1):
                 if position > state.position:  # else mapped before the checkpoint resumed
-                    frame = _feed(record, world, state.truth)
+                    frame = _feed(record, world, state.truth, state.health)
                     if frame:
                         collector.frame()
                     state.n_frames += frame
@@ -217,7 +219,7 @@ def _run(
                         state = _carry_on(world, checkpoints.take(state))
                 if progress is not None:
                     progress()
-            world.finish()
+            state.health.finish(world.finish())
             if season is not None:
                 season.finish(world)
     except (Exception, KeyboardInterrupt) as err:  # the map so far is still written
@@ -230,6 +232,7 @@ def _run(
     issues.update(checkpoints.issues if checkpoints is not None else {})
     result = RunResult(None, None, wall, n_frames, [], dict(issues), error, dict(counts))
     result.source_report = source.report if source is not None else None
+    result.health = state.health
     learned = world.report()
     result.noise, result.existence, result.gnss = (
         learned[k] for k in ("noise", "existence", "gnss")
@@ -285,8 +288,9 @@ def _carry_on(world: WorldModel, state: RunState) -> RunState:
     return state
 
 
-def _feed(record: Record, world: WorldModel, truth: Truth) -> int:
-    """One record to the world model (truth aside); 1 if it was a frame it mapped."""
+def _feed(record: Record, world: WorldModel, truth: Truth, health: Health) -> int:
+    """One record to the world model (truth aside, the step's health kept); 1 if it was a
+    frame it mapped."""
     if isinstance(record, TruthObject):
         truth.objects.add(record)
     elif isinstance(record, TruthPose):
@@ -297,6 +301,7 @@ def _feed(record: Record, world: WorldModel, truth: Truth) -> int:
         report = world.process(record)
         if report is not None and isinstance(record, Detections):
             truth.saw((d.truth_id for d in record.objects), report.object_ids)
+            health.step(report)
             return 1
     return 0
 
@@ -348,7 +353,8 @@ def _score(result: RunResult, final_ids: np.ndarray, truth: Truth) -> dict[str, 
 
 
 def _summary(result: RunResult) -> dict[str, Any]:
-    """The run's own section of metrics.json: status, what was read and skipped, issues."""
+    """The run's own sections of metrics.json: status, what was read and skipped, issues,
+    and the map's health by minute (run/health.py)."""
     report = result.source_report
     return {
         "run": {
@@ -363,6 +369,7 @@ def _summary(result: RunResult) -> dict[str, Any]:
         },
         "input": report.as_dict() if report is not None else None,
         "skipped": skipped_table(report),
+        "health": result.health.rows(),
         **({"gnss": result.gnss} if result.gnss else {}),
     }
 
