@@ -33,6 +33,8 @@ SIGNIFICANT = 3.0  # a term is used once it is this many of its standard errors 
 # with range at both ends and the heading drift between them
 SIGMA_AT_ZERO, SIGMA_PER_M, DRIFT_PER_M_SQRT_S = 0.02, 0.02, 0.03
 CAUCHY_WIDTH = 2.0  # in the pairs' own robust spread
+ROBUST_SIGMA = 1.4826  # a normal sample's sigma per median absolute residual
+MIN_SPREAD = 1e-3
 
 
 @dataclass(slots=True)
@@ -192,14 +194,14 @@ def fitted(pairs: list[tuple[Sighting, Sighting]], start: SensorTerms | None) ->
         return np.r_[((b - a) / sigma[:, None]).ravel(), (terms - NEUTRAL) / PRIOR_SIGMA]
 
     x0 = NEUTRAL if start is None else start.value
-    spread = float(np.median(np.abs(residuals(x0)))) * 1.4826 or 1.0
+    spread = max(ROBUST_SIGMA * float(np.median(np.abs(residuals(x0)))), MIN_SPREAD)
     solution = least_squares(
-        residuals, x0, loss="cauchy", f_scale=CAUCHY_WIDTH * max(spread, 1.0), method="trf"
+        residuals, x0, loss="cauchy", f_scale=CAUCHY_WIDTH * spread, method="trf"
     )
+    spread = max(ROBUST_SIGMA * float(np.median(np.abs(solution.fun))), MIN_SPREAD)
     jac = solution.jac
     try:
-        cov = np.linalg.inv(jac.T @ jac)
-        sigma = np.sqrt(np.clip(np.diag(cov), 0.0, None)) * max(spread, 1.0)
+        sigma = np.sqrt(np.clip(np.diag(np.linalg.inv(jac.T @ jac)), 0.0, None)) * spread
     except np.linalg.LinAlgError:
         sigma = np.full(len(TERMS), np.inf)
     return SensorTerms(solution.x, sigma, len(pairs))
