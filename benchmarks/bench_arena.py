@@ -47,6 +47,7 @@ from rich.table import Table
 from scipy.optimize import linear_sum_assignment
 
 from agrislam.config import AgrislamConfig
+from agrislam.config.loading import merged
 from agrislam.evaluation.metrics import association_counts, evaluate
 from agrislam.geometry.se2 import wrap_angle
 from agrislam.io.sinks.jsonl import write_log
@@ -319,17 +320,6 @@ def run_variant(
     return score(result, world, records, survey_s), result.issues, minutes
 
 
-def deep_update(base: dict[str, Any], extra: dict[str, Any]) -> dict[str, Any]:
-    """`base` with `extra` written over it, section by section."""
-    out = dict(base)
-    for key, value in extra.items():
-        if isinstance(value, dict) and isinstance(out.get(key), dict):
-            out[key] = deep_update(out[key], value)
-        else:
-            out[key] = value
-    return out
-
-
 def simulate(
     seed: int, minutes: float, attribute: bool, profile: str = "default"
 ) -> tuple[list[Record], float]:
@@ -402,7 +392,7 @@ def main() -> None:
         )
         done: dict[str, tuple[str, Score | list[str]]] = {}
         for name in args.variants:
-            cfg = AgrislamConfig.model_validate(deep_update(VARIANTS[name], args.set))
+            cfg = AgrislamConfig.model_validate(merged(VARIANTS[name], args.set))
             key = cfg.model_dump_json()
             if key in done:  # the same configuration today: not run twice
                 same, res = done[key]

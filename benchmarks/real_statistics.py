@@ -30,7 +30,8 @@ from rich.table import Table
 
 from agrislam.geometry.se2 import wrap_angle
 from agrislam.io.sources.jsonl import read_log
-from agrislam.records import Detections, Odometry, Record, TruthObject, TruthPose
+from agrislam.records import Detections, Record, TruthObject, TruthPose
+from real_scoring import Survey as LoggedSurvey
 
 console = Console(width=200)
 BEARING_BINS = (0.0, 0.1, 0.2, 0.3, 0.4, 0.5, np.inf)  # |bearing|, rad
@@ -66,16 +67,6 @@ def _track(t: list[float], poses: list[np.ndarray]) -> Track:
     return Track(np.asarray(t, float), pose)
 
 
-def _dead_reckon(deltas: list[np.ndarray]) -> list[np.ndarray]:
-    """Odometry-frame poses from increments, each in the previous robot frame."""
-    pose, out = np.zeros(3), []
-    for d in deltas:
-        c, s = np.cos(pose[2]), np.sin(pose[2])
-        pose = pose + np.array([c * d[0] - s * d[1], s * d[0] + c * d[1], d[2]])
-        out.append(pose.copy())
-    return out
-
-
 @dataclass
 class Survey:
     """A log's robots: odometry and thinned truth tracks, detections as arrays."""
@@ -94,20 +85,14 @@ class Survey:
 
 def survey(records: Iterable[Record], truth_step: float = 1.0) -> Survey:
     """A log's records as arrays; truth poses thinned to one per `truth_step` s per robot."""
-    odom_t: dict[str, list[float]] = {}
-    odom: dict[str, list[np.ndarray]] = {}
-    deltas: dict[str, bool] = {}
+    records = list(records)
     truth_t: dict[str, list[float]] = {}
     truth: dict[str, list[np.ndarray]] = {}
     frames: dict[str, list[float]] = {}
     landmarks: dict[str, np.ndarray] = {}
     rows: list[tuple[str, float, float, float, str]] = []
     for r in records:
-        if isinstance(r, Odometry):
-            odom_t.setdefault(r.robot, []).append(r.t)
-            deltas[r.robot] = r.pose is None
-            odom.setdefault(r.robot, []).append(r.delta if r.pose is None else r.pose)
-        elif isinstance(r, TruthPose):
+        if isinstance(r, TruthPose):
             times = truth_t.setdefault(r.robot, [])
             if not times or r.t >= times[-1] + truth_step - 1e-9:
                 times.append(r.t)
@@ -117,12 +102,10 @@ def survey(records: Iterable[Record], truth_step: float = 1.0) -> Survey:
         elif isinstance(r, Detections) and r.objects:
             frames.setdefault(r.robot, []).append(r.t)
             rows += [(r.robot, r.t, d.range, d.bearing, d.truth_id) for d in r.objects]
-    for name, is_delta in deltas.items():
-        if is_delta:
-            odom[name] = _dead_reckon(odom[name])
+    odometry = LoggedSurvey("", records).odometry_tracks()  # headings unwrapped
     robot, t, rng, bearing, ids = zip(*rows, strict=True)
     return Survey(
-        odometry={k: _track(odom_t[k], odom[k]) for k in odom},
+        odometry={k: Track(v[:, 0], v[:, 1:]) for k, v in odometry.items()},
         truth={k: _track(truth_t[k], truth[k]) for k in truth},
         frames={k: np.asarray(v) for k, v in frames.items()},
         landmarks=landmarks,

@@ -9,12 +9,13 @@ from typing import Any
 
 import numpy as np
 
-from agrislam.backend import Measurement
+from agrislam.backend import GraphBackend, Measurement
 from agrislam.backend.base import BackendBase
 
 
 class PriorBackend:
-    """Wraps a back end; every call it does not handle goes to the wrapped one."""
+    """Wraps a back end; every call it does not handle goes to the wrapped one (the members
+    GraphBackend lists are forwarded on the class, so it is a GraphBackend to a static look)."""
 
     def __init__(self, inner: BackendBase, ids: np.ndarray, xy: np.ndarray, cov: np.ndarray):
         self.inner = inner
@@ -67,3 +68,23 @@ class PriorBackend:
         if (~held).any():
             out[~held] = ask(object_ids[~held])
         return out
+
+
+def _forwarded(name: str) -> Any:
+    """GraphBackend's member `name` on PriorBackend, passed to the wrapped back end."""
+    if callable(getattr(GraphBackend, name, None)):
+
+        def method(self: PriorBackend, *args: Any, **kwargs: Any) -> Any:
+            return getattr(self.inner, name)(*args, **kwargs)
+
+        method.__name__ = name
+        return method
+    return property(
+        lambda self: getattr(self.inner, name),
+        lambda self, value: setattr(self.inner, name, value),
+    )
+
+
+for _name in [*GraphBackend.__annotations__, *vars(GraphBackend)]:
+    if not _name.startswith("_") and _name not in vars(PriorBackend):
+        setattr(PriorBackend, _name, _forwarded(_name))

@@ -8,6 +8,7 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
+from agrislam.config.loading import merged
 from agrislam.sim.effects_config import CameraEffects, OdometryEffects
 
 
@@ -268,7 +269,7 @@ class ArenaConfig(_Strict):
         velocities without covariance, a longer and wider camera with the real one's effects,
         nominal sigmas reported (docs/decisions.md). `changes` go on top, section
         by section, as `model_validate` would read them."""
-        return cls.model_validate(_merged(_realistic(), changes or {}))
+        return cls.model_validate(merged(_realistic(), changes or {}))
 
 
 def _realistic() -> dict[str, Any]:
@@ -302,14 +303,3 @@ def _realistic() -> dict[str, Any]:
             "effects": CameraEffects.mrclam().model_dump(),
         },
     }
-
-
-def _merged(base: dict[str, Any], extra: dict[str, Any]) -> dict[str, Any]:
-    """`base` with `extra` written over it, section by section."""
-    out = dict(base)
-    for key, value in extra.items():
-        if isinstance(value, dict) and isinstance(out.get(key), dict):
-            out[key] = _merged(out[key], value)
-        else:
-            out[key] = value
-    return out
