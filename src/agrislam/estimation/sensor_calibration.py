@@ -7,7 +7,8 @@ Two sightings of one object by one robot a few seconds apart, each placed in the
 dead-reckoning frame, put the object at one point when the biases are right, whatever the
 map says; robust least squares over many such pairs finds them. The range's overall scale
 s is fitted too but not applied: over a few seconds it cannot be told from the odometry's
-own scale."""
+own scale. So is the odometry's heading drift per metre, never applied either: left out,
+a camera's bearing offset took it up."""
 
 from __future__ import annotations
 
@@ -20,10 +21,13 @@ from scipy.optimize import least_squares
 from agrislam.geometry import se2
 from agrislam.records import Detection
 
-TERMS = ("scale", "off_axis", "bearing_offset", "clock_offset")
-NEUTRAL = np.array([1.0, 0.0, 0.0, 0.0])
-# weak priors that keep a term near neutral until pairs say otherwise (s, kappa, rad, s)
-PRIOR_SIGMA = np.array([0.2, 1.0, 0.2, 0.5])
+TERMS = ("scale", "off_axis", "bearing_offset", "clock_offset", "heading_drift")
+NEUTRAL = np.array([1.0, 0.0, 0.0, 0.0, 0.0])
+SENSOR = slice(0, 4)  # the terms of the sensor; the last is the odometry's
+DRIFT = TERMS.index("heading_drift")
+# weak priors that keep a term near neutral until pairs say otherwise (s, kappa, rad, s,
+# rad/m)
+PRIOR_SIGMA = np.array([0.2, 1.0, 0.2, 0.5, 0.05])
 SPAN_S = (1.0, 6.0)  # seconds between the two sightings of a pair
 KEPT_PAIRS = 5000  # the latest pairs of a robot an estimate uses
 MIN_PAIRS = 100  # pairs before a first estimate
@@ -58,23 +62,30 @@ class SensorTerms:
 
     @property
     def used(self) -> np.ndarray:
-        """(4,) the terms applied: the off-axis term, bearing and clock offsets once
-        significant (never the overall scale)."""
+        """(5,) the terms applied to the detections: the off-axis term, bearing and clock
+        offsets once significant (never the overall scale, nor the odometry's heading
+        drift, which is fitted only so that the sensor's terms do not take it up)."""
         significant = np.abs(self.value - NEUTRAL) > SIGNIFICANT * self.sigma
-        significant[0] = False
+        significant[0] = significant[DRIFT] = False
         return np.where(significant, self.value, NEUTRAL)
+
+
+def range_factor(bearing: np.ndarray, terms: np.ndarray) -> np.ndarray:
+    """(n,) the logged range over the true one at (offset-free) `bearing` under `terms`
+    (n, 4 or more): s (1 - kappa (1 - cos b))."""
+    return terms[:, 0] * (1.0 - terms[:, 1] * (1.0 - np.cos(bearing)))
 
 
 def camera_point(
     range_: np.ndarray, bearing: np.ndarray, velocity: np.ndarray, terms: np.ndarray
 ) -> np.ndarray:
     """(n, 2) where each detection lies in the frame of the pose it is stamped with, under
-    `terms` (n, 4): the bearing offset taken off, the range divided by its off-axis and
-    scale terms, and the camera's own pose then, `clock_offset` s from the stamp along the
-    robot's motion."""
-    scale, off_axis, offset, clock = terms.T
-    bearing = bearing - offset
-    true_range = range_ / (scale * (1.0 - off_axis * (1.0 - np.cos(bearing))))
+    `terms` (n, 4 or more; the sensor's first): the bearing offset taken off, the range
+    divided by its off-axis and scale terms, and the camera's own pose then, `clock_offset`
+    s from the stamp along the robot's motion."""
+    clock = terms[:, 3]
+    bearing = bearing - terms[:, 2]
+    true_range = range_ / range_factor(bearing, terms)
     point = true_range[:, None] * np.column_stack([np.cos(bearing), np.sin(bearing)])
     moved = np.column_stack([velocity[:, 0] * clock, np.zeros(len(clock)), velocity[:, 1] * clock])
     return se2.compose_points(moved, point)
@@ -171,26 +182,35 @@ def fitted(pairs: list[tuple[Sighting, Sighting]], start: SensorTerms | None) ->
     then = _columns([p[0] for p in pairs])
     now = _columns([p[1] for p in pairs])
     span = now["t"] - then["t"]
+    driven = np.linalg.norm(now["pose"][:, :2] - then["pose"][:, :2], axis=1)
 
-    def placed(sighting: dict[str, np.ndarray], terms: np.ndarray) -> np.ndarray:
+    def placed(
+        sighting: dict[str, np.ndarray], terms: np.ndarray, heading_error: np.ndarray | float
+    ) -> np.ndarray:
         local = camera_point(
             sighting["range"],
             sighting["bearing"],
             sighting["velocity"],
             np.tile(terms, (len(span), 1)),
         )
-        return se2.compose_points(sighting["pose"], local)
+        pose = sighting["pose"].copy()
+        pose[:, 2] -= heading_error
+        return se2.compose_points(pose, local)
+
+    reach = 0.5 * (then["range"] + now["range"])  # as logged
+    logged_sigma = np.sqrt(
+        2.0 * (SIGMA_AT_ZERO + SIGMA_PER_M * reach) ** 2
+        + (DRIFT_PER_M_SQRT_S * np.sqrt(span) * reach) ** 2
+    )
 
     def residuals(terms: np.ndarray) -> np.ndarray:
-        a, b = placed(then, terms), placed(now, terms)
-        reach = 0.5 * (
-            np.linalg.norm(a - then["pose"][:, :2], axis=1)
-            + np.linalg.norm(b - now["pose"][:, :2], axis=1)
-        )
-        sigma = np.sqrt(
-            2.0 * (SIGMA_AT_ZERO + SIGMA_PER_M * reach) ** 2
-            + (DRIFT_PER_M_SQRT_S * np.sqrt(span) * reach) ** 2
-        )
+        # the later pose's heading less the odometry's drift over the metres between them
+        a, b = placed(then, terms, 0.0), placed(now, terms, terms[DRIFT] * driven)
+        # the spread shrinks with the ranges the terms give: shrinking every range would
+        # otherwise shrink the noise's differences and pass for a better fit
+        tiled = np.tile(terms, (len(span), 1))
+        shrunk = 0.5 * sum(range_factor(s["bearing"] - terms[2], tiled) for s in (then, now))
+        sigma = logged_sigma / shrunk
         return np.r_[((b - a) / sigma[:, None]).ravel(), (terms - NEUTRAL) / PRIOR_SIGMA]
 
     x0 = NEUTRAL if start is None else start.value
