@@ -7,8 +7,7 @@ Two sightings of one object by one robot a few seconds apart, each placed in the
 dead-reckoning frame, put the object at one point when the biases are right, whatever the
 map says; robust least squares over many such pairs finds them. The range's overall scale
 s is fitted too but not applied: over a few seconds it cannot be told from the odometry's
-own scale. So is the odometry's heading drift per metre, never applied either: left out,
-a camera's bearing offset took it up."""
+own scale."""
 
 from __future__ import annotations
 
@@ -21,20 +20,19 @@ from scipy.optimize import least_squares
 from agrislam.geometry import se2
 from agrislam.records import Detection
 
-TERMS = ("scale", "off_axis", "bearing_offset", "clock_offset", "heading_drift")
-NEUTRAL = np.array([1.0, 0.0, 0.0, 0.0, 0.0])
-SENSOR = slice(0, 4)  # the terms of the sensor; the last is the odometry's
-DRIFT = TERMS.index("heading_drift")
-# weak priors that keep a term near neutral until pairs say otherwise (s, kappa, rad, s,
-# rad/m)
-PRIOR_SIGMA = np.array([0.2, 1.0, 0.2, 0.5, 0.05])
+TERMS = ("scale", "off_axis", "bearing_offset", "clock_offset")
+NEUTRAL = np.array([1.0, 0.0, 0.0, 0.0])
+# weak priors that keep a term near neutral until pairs say otherwise (s, kappa, rad, s)
+PRIOR_SIGMA = np.array([0.2, 1.0, 0.2, 0.5])
 SPAN_S = (1.0, 6.0)  # seconds between the two sightings of a pair
 KEPT_PAIRS = 5000  # the latest pairs of a robot an estimate uses
 MIN_PAIRS = 100  # pairs before a first estimate
 REFIT_EVERY = 150  # new pairs between estimates
-SIGNIFICANT = 3.0  # a term is used once it is this many of its standard errors from neutral
-# the spread of a pair's difference, before its scale is learned: detection noise growing
-# with range at both ends and the heading drift between them
+# a term is used once it is this many of its standard errors from neutral (pairs in one
+# stretch of a drive share its odometry's error: the errors, taken as independent, are small)
+SIGNIFICANT = 4.0
+# the spread of a pair's difference, before its scale is learned: each detection's noise as
+# logged (else growing with range) and the heading drift between them
 SIGMA_AT_ZERO, SIGMA_PER_M, DRIFT_PER_M_SQRT_S = 0.02, 0.02, 0.03
 CAUCHY_WIDTH = 2.0  # in the pairs' own robust spread
 ROBUST_SIGMA = 1.4826  # a normal sample's sigma per median absolute residual
@@ -50,6 +48,7 @@ class Sighting:
     velocity: np.ndarray  # (2,) forward speed m/s, turn rate rad/s
     range: float
     bearing: float
+    sigma: float  # m, its position's noise as logged (range and bearing together)
 
 
 @dataclass
@@ -62,17 +61,16 @@ class SensorTerms:
 
     @property
     def used(self) -> np.ndarray:
-        """(5,) the terms applied to the detections: the off-axis term, bearing and clock
-        offsets once significant (never the overall scale, nor the odometry's heading
-        drift, which is fitted only so that the sensor's terms do not take it up)."""
+        """(4,) the terms applied: the off-axis term, bearing and clock offsets once
+        significant (never the overall scale)."""
         significant = np.abs(self.value - NEUTRAL) > SIGNIFICANT * self.sigma
-        significant[0] = significant[DRIFT] = False
+        significant[0] = False
         return np.where(significant, self.value, NEUTRAL)
 
 
 def range_factor(bearing: np.ndarray, terms: np.ndarray) -> np.ndarray:
     """(n,) the logged range over the true one at (offset-free) `bearing` under `terms`
-    (n, 4 or more): s (1 - kappa (1 - cos b))."""
+    (n, 4): s (1 - kappa (1 - cos b))."""
     return terms[:, 0] * (1.0 - terms[:, 1] * (1.0 - np.cos(bearing)))
 
 
@@ -80,9 +78,9 @@ def camera_point(
     range_: np.ndarray, bearing: np.ndarray, velocity: np.ndarray, terms: np.ndarray
 ) -> np.ndarray:
     """(n, 2) where each detection lies in the frame of the pose it is stamped with, under
-    `terms` (n, 4 or more; the sensor's first): the bearing offset taken off, the range
-    divided by its off-axis and scale terms, and the camera's own pose then, `clock_offset`
-    s from the stamp along the robot's motion."""
+    `terms` (n, 4): the bearing offset taken off, the range divided by its off-axis and
+    scale terms, and the camera's own pose then, `clock_offset` s from the stamp along the
+    robot's motion."""
     clock = terms[:, 3]
     bearing = bearing - terms[:, 2]
     true_range = range_ / range_factor(bearing, terms)
@@ -146,7 +144,9 @@ class SensorCalibration:
         for det, obj in zip(raw, object_ids.tolist(), strict=True):
             if not _ranged(det):
                 continue
-            now = Sighting(t, pose.copy(), velocity.copy(), float(det.range), float(det.bearing))
+            now = Sighting(
+                t, pose.copy(), velocity.copy(), float(det.range), float(det.bearing), _sigma(det)
+            )
             recent = self._last.setdefault((robot, obj), [])
             recent[:] = [s for s in recent if t - s.t <= SPAN_S[1]]
             then = next((s for s in reversed(recent) if t - s.t >= SPAN_S[0]), None)
@@ -182,30 +182,23 @@ def fitted(pairs: list[tuple[Sighting, Sighting]], start: SensorTerms | None) ->
     then = _columns([p[0] for p in pairs])
     now = _columns([p[1] for p in pairs])
     span = now["t"] - then["t"]
-    driven = np.linalg.norm(now["pose"][:, :2] - then["pose"][:, :2], axis=1)
 
-    def placed(
-        sighting: dict[str, np.ndarray], terms: np.ndarray, heading_error: np.ndarray | float
-    ) -> np.ndarray:
+    def placed(sighting: dict[str, np.ndarray], terms: np.ndarray) -> np.ndarray:
         local = camera_point(
             sighting["range"],
             sighting["bearing"],
             sighting["velocity"],
             np.tile(terms, (len(span), 1)),
         )
-        pose = sighting["pose"].copy()
-        pose[:, 2] -= heading_error
-        return se2.compose_points(pose, local)
+        return se2.compose_points(sighting["pose"], local)
 
     reach = 0.5 * (then["range"] + now["range"])  # as logged
     logged_sigma = np.sqrt(
-        2.0 * (SIGMA_AT_ZERO + SIGMA_PER_M * reach) ** 2
-        + (DRIFT_PER_M_SQRT_S * np.sqrt(span) * reach) ** 2
+        then["sigma"] ** 2 + now["sigma"] ** 2 + (DRIFT_PER_M_SQRT_S * np.sqrt(span) * reach) ** 2
     )
 
     def residuals(terms: np.ndarray) -> np.ndarray:
-        # the later pose's heading less the odometry's drift over the metres between them
-        a, b = placed(then, terms, 0.0), placed(now, terms, terms[DRIFT] * driven)
+        a, b = placed(then, terms), placed(now, terms)
         # the spread shrinks with the ranges the terms give: shrinking every range would
         # otherwise shrink the noise's differences and pass for a better fit
         tiled = np.tile(terms, (len(span), 1))
@@ -234,7 +227,16 @@ def _columns(sightings: list[Sighting]) -> dict[str, np.ndarray]:
         "velocity": np.array([s.velocity for s in sightings]),
         "range": np.array([s.range for s in sightings]),
         "bearing": np.array([s.bearing for s in sightings]),
+        "sigma": np.array([s.sigma for s in sightings]),
     }
+
+
+def _sigma(det: Detection) -> float:
+    """A range-bearing detection's position noise (m) as logged, else a guess growing with
+    range."""
+    if det.sigma_range is None or det.sigma_bearing is None:
+        return SIGMA_AT_ZERO + SIGMA_PER_M * det.range
+    return float(np.hypot(det.sigma_range, det.range * det.sigma_bearing))
 
 
 def _ranged(det: Detection) -> bool:
