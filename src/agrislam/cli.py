@@ -543,6 +543,14 @@ def _summary(result: RunResult, out: Path) -> None:
     if noise and noise["enabled"]:
         factors = ", ".join(f"{k} x{v:.2f}" for k, v in noise["sigma_factors"].items())
         table.add_row("noise scales", f"{factors} ({noise['pairs_used']} pairs of sightings)")
+    for robot, terms in (result.sensor or {}).items():
+        used = [
+            f"{name} {t['estimate']:+.3f} ± {t['sigma']:.3f}"
+            for name, t in terms.items()
+            if isinstance(t, dict) and t["used"]
+        ]
+        if used:
+            table.add_row(f"sensor biases {robot}", ", ".join(used))
     console.print(table)
     print_health(result.health, console)
     for issue, count in sorted(result.issues.items()):

@@ -277,6 +277,7 @@ class WorldModel:
             "noise": estimators.noise.report(),
             "existence": self.stages.maintainer.existence.report(),
             "gnss": estimators.gnss.summary(),
+            "sensor": estimators.sensor.report(),
         }
 
     def release(self) -> None:

@@ -182,6 +182,26 @@ def test_merge_moves_every_factor_to_the_kept_object(kind):
         g.object_positions(np.array([1]))
 
 
+def test_objects_merged_while_retired_fold_again_on_their_own_keyframes(kind):
+    """Two copies retired by folds and merged before either is seen again: the kept object
+    comes back on its anchors alone, while the pose it was last seen from is long retired;
+    the next fold retires it on a keyframe its factors reach (it once looked for the newest
+    keyframe of the robot that saw it last, which its factors did not touch)."""
+    g = two_copies(kind, merged=True)
+    truth = np.array([2.0, 0.5])
+    for n in range(4, 10):  # driving on past other plants: the copies stay retired
+        g.add_odometry("r", float(n), np.array([0.3, 0.0, 0.0]), EXACT_ODOMETRY)
+        g.add_object(n, np.array([0.3 * n + 1.0, -1.0]))
+        g.add_observation("r", n, RelativePosition(np.array([1.0, -1.0]), np.eye(2) * 1e-2))
+        g.update()
+    g.merge_objects(0, 1)
+    for n in range(10, 13):
+        g.add_odometry("r", float(n), np.array([0.3, 0.0, 0.0]), EXACT_ODOMETRY)
+        g.update()
+    np.testing.assert_allclose(g.object_positions(np.array([0]))[0], truth, atol=0.05)
+    assert np.all(np.isfinite(g.object_covariances(np.array([0]))))
+
+
 def test_remove_object_drops_it_and_keeps_the_rest(kind):
     g = two_copies(kind, merged=True)
     g.remove_object(1)

@@ -14,6 +14,7 @@ from rich.console import Console
 
 from agrislam.association.loop_closure import CLOSED
 from agrislam.association.rejoin import REJOINED
+from agrislam.config import AgrislamConfig
 from agrislam.io.sources import open_source
 from agrislam.maintenance.maintainer import MaintenanceResult
 from agrislam.records import Detections, Odometry, Record
@@ -124,9 +125,19 @@ def records() -> list[Record]:
     return arena_records()
 
 
+def uncalibrated() -> WorldModel:
+    """A world that does not learn its camera's biases: pairs of sightings cannot tell a
+    heading drifting with the metres driven from a bearing offset, and the calibration
+    takes part of the corrupted heading up as one (docs/decisions.md, sensor calibration);
+    these tests are of the health alone."""
+    return WorldModel(
+        AgrislamConfig.model_validate({"advanced": {"sensor": {"estimate_biases": False}}})
+    )
+
+
 @pytest.fixture(scope="module")
 def clean(records) -> tuple[RunResult, WorldModel]:
-    world = WorldModel()
+    world = uncalibrated()
     return run_survey(records, world), world
 
 
@@ -156,7 +167,7 @@ def test_a_clean_surveys_nis_stays_at_or_below_chi2_with_two_dof(clean):
 
 def test_odometry_corrupted_from_minute_two_shows_in_the_later_minutes(records, clean):
     result, _ = clean
-    bad = run_survey(list(corrupted(records, CORRUPTED_FROM_S, HEADING_BIAS)), WorldModel())
+    bad = run_survey(list(corrupted(records, CORRUPTED_FROM_S, HEADING_BIAS)), uncalibrated())
     before, after = result.health.rows(), bad.health.rows()
     assert after[:2] == before[:2]  # the same records up to minute 2
     later = slice(2, None)

@@ -86,6 +86,12 @@ class AdvancedSensor(StrictModel):
     depth_bias_min_views: int = Field(
         4, ge=1, description="detections of an object before its residuals count"
     )
+    estimate_biases: bool = Field(
+        True,
+        description="learn each range-bearing sensor's off-axis range term, bearing offset "
+        "and clock offset against the odometry from pairs of its sightings, and take them "
+        "off its detections (estimation/sensor_calibration.py)",
+    )
     limits: InputLimits = Field(
         default_factory=InputLimits,
         description="bounds of what a source accepts from a record (io/sources/validate.py)",

@@ -14,6 +14,7 @@ from agrislam.estimation.gnss import GnssFixes
 from agrislam.estimation.noise_calibration import NoiseCalibration
 from agrislam.estimation.point_spacing import PointSpacing
 from agrislam.estimation.rows import RowTracker
+from agrislam.estimation.sensor_calibration import SensorCalibration
 from agrislam.geometry import se2
 from agrislam.geometry.placed import FrameMatch
 from agrislam.mapping.map_state import MapState
@@ -27,6 +28,7 @@ class Estimators:
         sensor = settings.sensor
         self.noise = NoiseCalibration(sensor.calibration)
         self.depth_bias = DepthBiasEstimator(sensor.depth_bias)
+        self.sensor = SensorCalibration(sensor.estimate_biases)
         self.spacing = PointSpacing(settings.association.d_inter)
         self.gnss = GnssFixes(settings.gnss)
         self.rows = RowTracker(settings.rows) if settings.rows.enabled else None
@@ -54,6 +56,9 @@ class Estimators:
                 frame = (xy, cov, chain.drift)
                 self.noise.observe(frame, robot, around, last, chosen, dist)
         objects.seen(object_ids, robot, chain.drift, xy, cov)
+        self.sensor.observe(
+            match.robot, match.t, chain.pose, chain.velocity(), match.mapped, object_ids
+        )
 
     def calibrate_depth(self, match: FrameMatch) -> None:
         """Along-ray residuals of well-triangulated objects refine the depth bias."""

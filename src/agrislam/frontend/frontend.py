@@ -71,6 +71,9 @@ class FrontEnd:
             for name in dropped:
                 self.issues[f"measurement of {name!r} not in the schema: dropped"] += 1
             checked.append(det)
+        chain = self.robots.get(frame.robot)
+        velocity = chain.velocity() if chain is not None else np.zeros(2)
+        checked = self.estimators.sensor.correct(frame.robot, velocity, checked)
         if checked and not self.estimators.spacing.settled:
             self.estimators.spacing.observe(self.detection_covariances(checked))
         return checked

@@ -67,6 +67,17 @@ class OdometryChain:
             self.drift = self.drift + ad @ pending[1] @ ad.T
         return pending
 
+    def velocity(self) -> np.ndarray:
+        """(2,) forward speed (m/s) and turn rate (rad/s) over the last increment recorded;
+        zero before there is one."""
+        if len(self._track_t) < 2:
+            return np.zeros(2)
+        (t0, t1), (p0, p1) = self._track_t.array[-2:], self._track.array[-2:]
+        if t1 <= t0:
+            return np.zeros(2)
+        motion = se2.between(p0, p1)
+        return np.array([motion[0], motion[2]]) / (t1 - t0)
+
     def track(self) -> tuple[np.ndarray, np.ndarray]:
         """(m,) times and (m, 3) dead-reckoning poses so far."""
         return self._track_t.array.copy(), self._track.array.copy()

@@ -41,6 +41,12 @@ def pair_motions(new: np.ndarray, old: np.ndarray, tolerance: np.ndarray | float
     return np.column_stack([shift, turn])
 
 
+def compose_points(poses: np.ndarray, xy: np.ndarray) -> np.ndarray:
+    """(n, 2) each point of `xy` (n, 2), given in the frame of its pose of `poses` (n, 3),
+    expressed in the poses' parent frame."""
+    return turned(xy, poses[:, 2]) + poses[:, :2]
+
+
 def compose(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """a (+) b: the pose b, given in the frame of pose a, expressed in a's parent frame."""
     c, s = np.cos(a[2]), np.sin(a[2])

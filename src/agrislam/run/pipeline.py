@@ -107,6 +107,7 @@ class RunResult:
     source_report: SourceReport | None = None
     noise: dict[str, Any] | None = None  # the noise scales the run estimated (noise_calibration)
     existence: dict[str, Any] | None = None  # young objects confirmed, dropped (maintenance/)
+    sensor: dict[str, Any] | None = None  # each range-bearing sensor's biases, as learned
     gnss: dict[str, int] = field(default_factory=dict)  # fixes used and rejected
     checkpoints: dict[str, Any] | None = None  # resumed at which record, checkpoints taken
     season: dict[str, Any] | None = None  # a survey that continued a saved map
@@ -234,8 +235,8 @@ def _run(
     result.source_report = source.report if source is not None else None
     result.health = state.health
     learned = world.report()
-    result.noise, result.existence, result.gnss = (
-        learned[k] for k in ("noise", "existence", "gnss")
+    result.noise, result.existence, result.gnss, result.sensor = (
+        learned[k] for k in ("noise", "existence", "gnss", "sensor")
     )
     if checkpoints is not None:
         result.checkpoints = {
@@ -364,6 +365,7 @@ def _summary(result: RunResult) -> dict[str, Any]:
             "records": result.records,
             "issues": result.issues,
             "noise_calibration": result.noise,
+            "sensor_calibration": result.sensor,
             "existence": result.existence,
             "checkpoints": result.checkpoints,
         },

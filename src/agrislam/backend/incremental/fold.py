@@ -104,6 +104,22 @@ class Folding:
             self._nodes.freeze(keyframe, self.estimate(keyframe), cov)
             self._folded_heading.pop(keyframe, None)
 
+    def _reached(
+        self, key: int, graph: gtsam.NonlinearFactorGraph, point: gtsam.Values, window: set[int]
+    ) -> int:
+        """A keyframe in `point` to retire object `key` on when the robot that saw it last
+        has none there (merged while retired, it came back on its anchors, which tie it to
+        an older keyframe): the newest keyframe its factors touch, else the point's newest,
+        else any pose of the point outside the window."""
+        touched = {
+            k for i in range(graph.size()) if key in (keys := graph.at(i).keys()) for k in keys
+        }
+        outside = [k for k in point.keys() if key_kind(k) == POSE and k not in window]  # noqa: SIM118
+        for poses in ([k for k in outside if k in touched], outside):
+            if kept := [k for k in poses if self._nodes.is_kept(k)]:
+                return max(kept)
+        return max(outside)
+
     def _retire(
         self,
         window: set[int],
@@ -131,6 +147,8 @@ class Folding:
             keyframe = frames[-2] if step < half and len(frames) > 1 else frames[-1]
             if not point.exists(keyframe):
                 keyframe = frames[-1]
+            if not point.exists(keyframe):  # merged while retired: back on its anchors alone
+                keyframe = self._reached(key, graph, point, window)
             anchored.setdefault(keyframe, []).append(key)
         for robot, keys in driven.items():
             end = self._nodes.keyframes(robot)[-1]
