@@ -41,8 +41,7 @@ class Rule(NamedTuple):
     shift: float = np.inf  # m the constellation's centre moves by, at most
     turn: float = np.inf  # rad it turns by, at most
     # m: a fit putting the constellation this far (median) from the best's is another
-    # place, and one matching as many makes it unclear; None: one sharing under half of
-    # its matches with the best's and matching over half as many does
+    # place; None: one sharing under half of its matches with the best's is
     apart: float | None = None
 
 
@@ -227,17 +226,15 @@ class LoopCloser:
             return None
         if np.median(np.linalg.norm(best.moved - new, axis=1)[best.rows]) <= rule.least:
             return None  # near enough for association and the merger
-        if rule.apart is not None:
-            rivals = [f for f in fits[1:] if f.matched >= best.matched]
-            if any(
-                np.median(np.linalg.norm(f.moved - best.moved, axis=1)) > rule.apart for f in rivals
-            ):
-                return None  # another place fits as well: not sure where it is
-            return best
         pairs = set(zip(best.rows.tolist(), best.cols.tolist(), strict=True))
         for other in fits[1:]:
-            shared = len(pairs & set(zip(other.rows.tolist(), other.cols.tolist(), strict=True)))
-            if 2 * shared < other.matched and 2 * other.matched > best.matched:
+            if rule.apart is not None:
+                gap = np.median(np.linalg.norm(other.moved - best.moved, axis=1))
+                elsewhere = bool(gap > rule.apart)
+            else:
+                matches = set(zip(other.rows.tolist(), other.cols.tolist(), strict=True))
+                elsewhere = 2 * len(pairs & matches) < other.matched
+            if elsewhere and 2 * other.matched > best.matched:
                 return None  # another place fits about as well: not sure where it is
         return best
 

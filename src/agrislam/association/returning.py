@@ -29,7 +29,10 @@ from agrislam.mapping.objects import NO_OBJECTS, ObjectTable
 RETURN_SIGMAS = 2.0  # a robot may be returning once this many sigmas of its drift ...
 PLACE_SPACINGS = 2.0  # ... reach this many d_inter: places nearer are set right by the merger
 REACH_SIGMAS = 3.0  # the largest correction of a returning robot's pose, in its drift's sigmas
-AGREEING = 3  # distinct landmarks that must agree on one correction
+AGREEING = 3  # distinct landmarks of one frame that must agree on one correction
+# objects of its constellation that must: they were placed from poses some seconds apart,
+# whose drift lets a triangle of them fit another of the map's
+CONSTELLATION_AGREEING = 4
 GIVE_UP_S = 60.0  # a robot no correction is clear for this long goes back to the GNN
 RETURNED = "returns: robots back from a drift past the landmarks' spacing (returning.py)"
 GAVE_UP = "returns given up: no correction was clear in time (association/returning.py)"

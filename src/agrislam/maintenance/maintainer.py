@@ -13,7 +13,7 @@ import numpy as np
 
 from agrislam.association.loop_closure import LoopCloser, Rule
 from agrislam.association.range_outliers import RangeOutliers
-from agrislam.association.returning import AGREEING, PLACE_SPACINGS, Returns
+from agrislam.association.returning import CONSTELLATION_AGREEING, PLACE_SPACINGS, Returns
 from agrislam.backend import GraphBackend
 from agrislam.config import MaintenanceConfig
 from agrislam.estimation.point_spacing import PointSpacing
@@ -98,7 +98,7 @@ class Maintainer:
             return self.loops.pairs(robot, match.t, objects, self.backend, noise_variance, hidden)
         own = returns.constellation(robot, objects)
         apart = PLACE_SPACINGS * self.spacing.d_inter
-        rule = Rule(AGREEING, 0.0, away.shift, away.turn, apart)
+        rule = Rule(CONSTELLATION_AGREEING, 0.0, away.shift, away.turn, apart)
         hidden = returns.hidden(objects, robot)
         loop = self.loops.returned(robot, own, rule, objects, self.backend, noise_variance, hidden)
         if loop:

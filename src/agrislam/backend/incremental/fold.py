@@ -104,6 +104,13 @@ class Folding:
             self._nodes.freeze(keyframe, self.estimate(keyframe), cov)
             self._folded_heading.pop(keyframe, None)
 
+    def _kept_in(self, point: gtsam.Values, window: set[int]) -> int:
+        """A keyframe among `point`'s nodes outside the window, the newest (any pose
+        outside the window if none is a keyframe)."""
+        poses = [k for k in point.keys() if key_kind(k) == POSE and k not in window]  # noqa: SIM118
+        kept = [k for k in poses if self._nodes.is_kept(k)]
+        return max(kept or poses)
+
     def _retire(
         self,
         window: set[int],
@@ -131,6 +138,8 @@ class Folding:
             keyframe = frames[-2] if step < half and len(frames) > 1 else frames[-1]
             if not point.exists(keyframe):
                 keyframe = frames[-1]
+            if not point.exists(keyframe):  # seen last by a robot its factors do not reach
+                keyframe = self._kept_in(point, window)  # (a merge took them over)
             anchored.setdefault(keyframe, []).append(key)
         for robot, keys in driven.items():
             end = self._nodes.keyframes(robot)[-1]
