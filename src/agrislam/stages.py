@@ -14,6 +14,7 @@ from agrislam.association.associator import Associator
 from agrislam.association.loop_closure import RECENT_S, LoopCloser
 from agrislam.association.range_outliers import RangeOutliers
 from agrislam.association.rejoin import Rejoiner
+from agrislam.association.returning import Returns
 from agrislam.backend import GraphBackend, make_backend
 from agrislam.config import FieldSchema, Settings
 from agrislam.estimation.estimators import Estimators
@@ -72,6 +73,7 @@ def build_stages(
     rejoiner = Rejoiner(map_state.index, map_state.births, issues, gate)
     outliers = RangeOutliers(enabled=landmarks)
     loops = LoopCloser(map_state.births, issues, gate, estimators.spacing)
+    returns = Returns(map_state, estimators.spacing, issues, enabled=gate is not None)
     tentative = settings.maintenance.existence
     associator = Associator(
         association,
@@ -79,7 +81,7 @@ def build_stages(
         backend,
         frontend,
         estimators,
-        (rejoiner, outliers),
+        (rejoiner, outliers, returns),
         tentative,
         issues,
     )
@@ -88,7 +90,7 @@ def build_stages(
         map_state,
         backend,
         estimators.spacing,
-        (Merger(spare_together=landmarks), loops, outliers),
+        (Merger(spare_together=landmarks), loops, outliers, returns),
         first_own,
     )
     return Stages(map_state, backend, estimators, frontend, associator, maintainer)

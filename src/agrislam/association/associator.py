@@ -1,7 +1,8 @@
 """The association stage (sec. 2.4): candidates gated through the spatial index, the
 association matrix over the frame's detections and them, the GNN; then the safeguards
-beyond the paper (a lost robot rejoins the map, a gross range error goes to its landmark)
-and the detections left unassigned start new objects."""
+beyond the paper (a returning robot keeps to objects of its own until landmarks agree where
+it is, a lost robot rejoins the map, a gross range error goes to its landmark) and the
+detections left unassigned start new objects."""
 
 from __future__ import annotations
 
@@ -18,7 +19,8 @@ from agrislam.association.gnn import (
     rivals_on_one_metric,
 )
 from agrislam.association.range_outliers import RANGE_ERRORS, RangeOutliers
-from agrislam.association.rejoin import Rejoiner
+from agrislam.association.rejoin import Bounds, Rejoiner
+from agrislam.association.returning import AGREEING, PLACE_SPACINGS, Returns
 from agrislam.backend import GraphBackend
 from agrislam.config import AssociationConfig
 from agrislam.estimation.estimators import Estimators
@@ -40,14 +42,14 @@ class Associator:
         backend: GraphBackend,
         frontend: FrontEnd,
         estimators: Estimators,
-        safeguards: tuple[Rejoiner, RangeOutliers],
+        safeguards: tuple[Rejoiner, RangeOutliers, Returns],
         tentative: bool,
         issues: Counter[str],
     ) -> None:
         self.config, self.map, self.backend = config, map_state, backend
         self.frontend, self.estimators = frontend, estimators
         self.spacing = estimators.spacing
-        self.rejoiner, self.outliers = safeguards
+        self.rejoiner, self.outliers, self.returns = safeguards
         self.tentative = tentative  # new objects wait for confirmation (maintenance/existence.py)
         self.issues = issues
 
@@ -71,6 +73,7 @@ class Associator:
         unassigned = np.flatnonzero(object_ids < 0)
         new_ids = self.map.add(placed.xy[unassigned], t, self.tentative, self.backend)
         object_ids[unassigned] = new_ids
+        self.returns.started(robot_index, new_ids)
         self.outliers.born(object_ids[on_ray[mapped] >= 0], t, objects)
         ids, reach = (object_ids, new_ids, on_ray, mapped), self.reach(placed)
         return FrameMatch(
@@ -98,20 +101,25 @@ class Associator:
     ) -> tuple[np.ndarray, np.ndarray, bool]:
         """GNN over the association matrix of gated candidates (sec. 2.4), then the lost
         robot's rejoin: each detection's object (-1 = new), the NIS of those the GNN put on
-        objects (NaN for the others) and whether the frame rejoined the map."""
+        objects (NaN for the others) and whether the frame rejoined the map. A returning
+        robot's candidates are its own new objects (association/returning.py)."""
         cfg, d_inter, backend = self.config, self.spacing.d_inter, self.backend
         if len(placed) == 0:
             return np.empty(0, dtype=int), np.empty(0), False
+        heading, scale = backend.current_pose(robot)[2], self.estimators.noise.scale
+        positions = backend.object_positions
+        self.returns.check(robot_index, chain, scale, placed, heading, positions, t)
         candidates = self.map.index.query(placed.xy, self.reach(placed))
+        candidates = self.returns.eligible(robot_index, candidates, self.map.objects)
         if len(candidates) == 0:
-            return np.full(len(placed), -1), np.full(len(placed), np.nan), False
+            ids, nis = np.full(len(placed), -1), np.full(len(placed), np.nan)
+            return self._rejoin(robot, robot_index, chain, placed, ids, nis, t)
         object_cov = backend.object_covariances(candidates)  # may solve: then positions
         object_xy = backend.object_positions(candidates)
         innovation = own = None
         if cfg.innovation_gate:
             # what the robot's drift since it last saw each candidate adds (geometry/drift.py)
             then = self.map.objects.last_seen(candidates, robot_index)
-            heading, scale = backend.current_pose(robot)[2], self.estimators.noise.scale
             now, before = scale.odometry(chain.drift), scale.odometry(then.drift)
             drift = since_seen(chain.pose, now, before, then.known, placed.robot_xy, heading)
             own = innovation_covariance(placed, object_cov, drift, then.known)
@@ -123,8 +131,34 @@ class Associator:
         chosen = assign(matrix)
         ids = np.where(chosen >= 0, candidates[np.maximum(chosen, 0)], -1)
         nis = accepted_nis(placed, chosen, object_xy, object_cov, own)
-        pose = backend.current_pose(robot)
-        rejoined = self.rejoiner.rejoin(pose[:2], placed, ids, t, backend)
+        return self._rejoin(robot, robot_index, chain, placed, ids, nis, t)
+
+    def _rejoin(
+        self,
+        robot: str,
+        robot_index: int,
+        chain: OdometryChain,
+        placed: PlacedDetections,
+        ids: np.ndarray,
+        nis: np.ndarray,
+        t: float,
+    ) -> tuple[np.ndarray, np.ndarray, bool]:
+        """The GNN's choice `ids` put back on settled objects if a correction of the robot's
+        pose says so (association/rejoin.py): within a metre for a robot on the map, within
+        its drift's reach and with AGREEING landmarks for a returning one, which is then
+        back; a robot whose frame went to mapped objects counts its drift from here."""
+        objects, returns = self.map.objects, self.returns
+        away = returns.away(robot_index)
+        if away is None:
+            bounds = Bounds(unsettled=returns.hidden(objects))
+        else:
+            unsettled = returns.hidden(objects)  # its own constellation too
+            apart = PLACE_SPACINGS * self.spacing.d_inter
+            bounds = Bounds(away.shift, away.turn, AGREEING, unsettled, apart)
+        xy = self.backend.current_pose(robot)[:2]
+        rejoined = self.rejoiner.rejoin(xy, placed, ids, t, self.backend, bounds)
         moved = rejoined != ids
         nis[moved] = np.nan  # placed by the rejoin, not the GNN
+        if (away is None and (rejoined >= 0).any()) or moved.any():
+            returns.back(robot_index, chain)
         return rejoined, nis, bool(moved.any())

@@ -1,6 +1,8 @@
 """A robot that comes back to where it mapped long ago closes the loop (not in the paper):
 its newest objects, moved far past the gate by its drift, are matched as a constellation
-to old objects by a voted rigid motion; each matched new object merges into its old one."""
+to old objects by a voted rigid motion; each matched new object merges into its old one.
+A returning robot's constellation (association/returning.py) is matched the same way as
+soon as a few of its objects fit one motion within its drift's reach, however small."""
 
 from __future__ import annotations
 
@@ -15,7 +17,7 @@ from agrislam.backend import GraphBackend
 from agrislam.estimation.point_spacing import PointSpacing
 from agrislam.geometry.se2 import pair_motions, rotation, turned
 from agrislam.mapping.births import Births
-from agrislam.mapping.objects import ObjectTable
+from agrislam.mapping.objects import NO_OBJECTS, ObjectTable
 from agrislam.snapshot import STATUS_ACTIVE
 
 RECENT_S = 300.0  # objects started this recently may form a robot's constellation
@@ -29,6 +31,18 @@ CLOSED = (
     "loops closed: a returning robot's new objects merged into old ones "
     "(association/loop_closure.py)"
 )
+
+
+class Rule(NamedTuple):
+    """What a motion of a constellation must be to close a loop."""
+
+    matches: int = MIN_MATCHES  # matched objects, at least
+    least: float = 0.0  # m the median matched object moves by, more than this
+    shift: float = np.inf  # m the constellation's centre moves by, at most
+    turn: float = np.inf  # rad it turns by, at most
+    # m: a fit putting the constellation this far (median) from the best's is another
+    # place; None: one sharing under half of its matches with the best's is
+    apart: float | None = None
 
 
 class _Fit(NamedTuple):
@@ -52,7 +66,7 @@ class LoopCloser:
         self.births, self.issues = births, issues
         self.gate_chi2 = gate_chi2  # the association's gate; None: off
         self.spacing = spacing  # a motion must move the constellation by 2 d_inter at least
-        self._checked: dict[int, int] = {}  # robot -> newest object of its last check
+        self._checked: dict[int, tuple[int, ...]] = {}  # robot -> constellation last checked
 
     @property
     def reach(self) -> float:
@@ -67,24 +81,80 @@ class LoopCloser:
         objects: ObjectTable,
         backend: GraphBackend,
         scale: float,
+        hidden: np.ndarray = NO_OBJECTS,
     ) -> list[tuple[int, int]]:
         """(old, new) objects to merge: the robot's constellation on old objects, or none;
-        `scale` is the calibrated detection variance's factor."""
+        `scale` is the calibrated detection variance's factor; `hidden` objects (returning
+        robots' constellations) are no candidates."""
         if self.gate_chi2 is None:
             return []
         recent = self._constellation(robot, t, objects)
-        if len(recent) < MIN_MATCHES or recent[-1] == self._checked.get(robot):
+        if len(recent) < MIN_MATCHES or self._seen_before(robot, recent[-1:]):
             return []
-        self._checked[robot] = int(recent[-1])
         positions = backend.object_positions
         old = self._candidates(int(recent[0]), objects, positions(recent).mean(axis=0), positions)
-        if len(old) < MIN_MATCHES:
+        old = old[~np.isin(old, hidden)]
+        return self._close(robot, recent, old, Rule(least=self.reach), objects, backend, scale)
+
+    def returned(
+        self,
+        robot: int,
+        own: np.ndarray,
+        rule: Rule,
+        objects: ObjectTable,
+        backend: GraphBackend,
+        scale: float,
+        hidden: np.ndarray = NO_OBJECTS,
+    ) -> list[tuple[int, int]]:
+        """(old, new) objects to merge: a returning robot's constellation `own` (the objects
+        it started since it left the map) on the map's objects nearest it but `hidden`, by
+        a motion within `rule`, or none."""
+        if self.gate_chi2 is None:
             return []
+        recent = own[objects.n_frames[own] >= MIN_FRAMES][-MAX_CONSTELLATION:]
+        if len(recent) < rule.matches or self._seen_before(robot, recent):
+            return []
+        ok = (objects.status == STATUS_ACTIVE) & (objects.n_frames >= MIN_FRAMES)
+        ok[own], ok[hidden] = False, False
+        old = np.flatnonzero(ok)
+        positions = backend.object_positions
+        new_xy, old_xy = positions(recent), positions(old)
+        centre = new_xy.mean(axis=0)
+        spread = float(np.linalg.norm(new_xy - centre, axis=1).max())
+        far = np.linalg.norm(old_xy - centre, axis=1)
+        near = np.flatnonzero(far <= rule.shift + spread)
+        old = np.sort(old[near[np.argsort(far[near])[:MAX_CANDIDATES]]])
+        return self._close(robot, recent, old, rule, objects, backend, scale)
+
+    def _seen_before(self, robot: int, constellation: np.ndarray) -> bool:
+        """Whether the robot's constellation was checked as it is (its newest object, or
+        all of it), and note it as checked."""
+        key = tuple(constellation.tolist())
+        if self._checked.get(robot) == key:
+            return True
+        self._checked[robot] = key
+        return False
+
+    def _close(
+        self,
+        robot: int,
+        recent: np.ndarray,
+        old: np.ndarray,
+        rule: Rule,
+        objects: ObjectTable,
+        backend: GraphBackend,
+        scale: float,
+    ) -> list[tuple[int, int]]:
+        """(old, new) pairs the constellation `recent` closes on the candidates `old` by."""
+        if len(old) < rule.matches:
+            return []
+        positions = backend.object_positions
         fit = self._fit(
             positions(recent),
             positions(old),
             _variance(recent, objects, scale),
             _variance(old, objects, scale),
+            rule,
         )
         if fit is None:
             return []
@@ -120,16 +190,22 @@ class LoopCloser:
         return np.sort(ids[np.argsort(far)[:MAX_CANDIDATES]])
 
     def _fit(
-        self, new_xy: np.ndarray, old_xy: np.ndarray, new_var: np.ndarray, old_var: np.ndarray
+        self,
+        new_xy: np.ndarray,
+        old_xy: np.ndarray,
+        new_var: np.ndarray,
+        old_var: np.ndarray,
+        rule: Rule,
     ) -> _Fit | None:
-        """The motion of the constellation onto the candidates, if it is clear; `new_var`
-        and `old_var` (m^2 per axis) say how sure the objects' places are relative to
-        their neighbours."""
+        """The motion of the constellation onto the candidates, if it is clear and within
+        `rule`; `new_var` and `old_var` (m^2 per axis) say how sure the objects' places are
+        relative to their neighbours."""
         centre = new_xy.mean(axis=0)
         new, old = new_xy - centre, old_xy - centre
         variance = new_var[:, None] + old_var[None, :]  # of each (new, old) offset
         sigma = float(np.sqrt(np.median(variance)))
         motions = pair_motions(new, old, SPACING_SIGMAS * np.sqrt(2.0) * sigma)
+        motions = motions[_within(motions, rule)]
         if len(motions) == 0:
             return None
         spread = max(float(np.linalg.norm(new, axis=1).max()), sigma)
@@ -139,21 +215,34 @@ class LoopCloser:
             for _ in range(2):  # refit the motion to its matches, count again
                 if fit.matched < 2:
                     break
-                motion = _procrustes(new[fit.rows], old[fit.cols])
-                fit = _count(motion, new, old, variance, self.gate_chi2)
+                refit = _procrustes(new[fit.rows], old[fit.cols])
+                if not _within(refit[None], rule)[0]:
+                    break
+                fit = _count(refit, new, old, variance, self.gate_chi2)
             fits.append(fit)
         fits.sort(key=lambda f: (-f.matched, f.cost))
         best = fits[0]
-        if best.matched < MIN_MATCHES:
+        if best.matched < rule.matches:
             return None
-        if np.median(np.linalg.norm(best.moved - new, axis=1)[best.rows]) <= self.reach:
+        if np.median(np.linalg.norm(best.moved - new, axis=1)[best.rows]) <= rule.least:
             return None  # near enough for association and the merger
         pairs = set(zip(best.rows.tolist(), best.cols.tolist(), strict=True))
         for other in fits[1:]:
-            shared = len(pairs & set(zip(other.rows.tolist(), other.cols.tolist(), strict=True)))
-            if 2 * shared < other.matched and 2 * other.matched > best.matched:
+            if rule.apart is not None:
+                gap = np.median(np.linalg.norm(other.moved - best.moved, axis=1))
+                elsewhere = bool(gap > rule.apart)
+            else:
+                matches = set(zip(other.rows.tolist(), other.cols.tolist(), strict=True))
+                elsewhere = 2 * len(pairs & matches) < other.matched
+            if elsewhere and 2 * other.matched > best.matched:
                 return None  # another place fits about as well: not sure where it is
         return best
+
+
+def _within(motions: np.ndarray, rule: Rule) -> np.ndarray:
+    """(h,) which motions (dx, dy, dtheta) about the constellation's centre `rule` allows."""
+    shift = np.linalg.norm(motions[:, :2], axis=1)
+    return (shift <= rule.shift) & (np.abs(motions[:, 2]) <= rule.turn)
 
 
 def _variance(ids: np.ndarray, objects: ObjectTable, scale: float) -> np.ndarray:

@@ -1,7 +1,8 @@
 """A robot that lost its way rejoins the map (not in the paper). Pairs of the frame's new
 detections matched to pairs of settled objects as far apart fix corrections of its pose;
 one that puts at least two more detections on settled objects than the GNN did, with no
-distinct rival as good, is taken."""
+distinct rival as good, is taken. A returning robot (association/returning.py) is given
+bounds of its own: its drift's reach, and several landmarks agreeing."""
 
 from __future__ import annotations
 
@@ -16,6 +17,7 @@ from agrislam.estimation.noise_calibration import mahalanobis
 from agrislam.geometry.placed import PlacedDetections
 from agrislam.geometry.se2 import pair_motions, turned
 from agrislam.mapping.births import Births
+from agrislam.mapping.objects import NO_OBJECTS
 from agrislam.mapping.spatial_index import SpatialIndex
 
 LOST_WINDOW_S = 30.0  # objects started this recently are not settled
@@ -24,6 +26,20 @@ MAX_TURN_RAD = 0.3  # and of its heading
 DISTINCT = (0.2, 0.05)  # (m, rad): corrections nearer than this are one
 SPACING_SIGMAS = 3.0  # two detections' distance apart matches two objects' within this
 REJOINED = "frames on which a lost robot rejoined the map (association/rejoin.py)"
+
+
+class Bounds(NamedTuple):
+    """What a correction may be: how far it moves the robot, how many detections it must
+    put on settled objects at least (beyond two more than the GNN did), and the objects
+    that do not count as settled whatever their age."""
+
+    shift: float = MAX_SHIFT_M  # m
+    turn: float = MAX_TURN_RAD  # rad
+    agreeing: int = 0
+    unsettled: np.ndarray = NO_OBJECTS
+    # m: corrections moving the frame's detections (median) this far from each other are
+    # two places; None: those differing by DISTINCT
+    apart: float | None = None
 
 
 class Rejoiner:
@@ -47,27 +63,35 @@ class Rejoiner:
         object_ids: np.ndarray,  # (m,) the GNN's choice, -1 new
         t: float,
         backend: GraphBackend,
+        bounds: Bounds | None = None,
     ) -> np.ndarray:
         """`object_ids` with the frame put back on settled objects, or as they were."""
         if self.gate_chi2 is None:
             return object_ids
-        settled = self.births.below(t - LOST_WINDOW_S)
-        lost = np.flatnonzero((object_ids < 0) | (object_ids >= settled))
-        if len(lost) < 2 or settled == 0:
+        bounds = bounds or Bounds()
+        below = self.births.below(t - LOST_WINDOW_S)
+
+        def settled(ids: np.ndarray) -> np.ndarray:
+            return (ids >= 0) & (ids < below) & ~np.isin(ids, bounds.unsettled)
+
+        lost = np.flatnonzero(~settled(object_ids))
+        if len(lost) < max(2, bounds.agreeing) or below == 0:
             return object_ids
         det_xy, det_cov = placed.xy, placed.cov
-        reach = MAX_SHIFT_M + MAX_TURN_RAD * np.linalg.norm(det_xy - robot_xy, axis=1).max()
+        reach = bounds.shift + bounds.turn * np.linalg.norm(det_xy - robot_xy, axis=1).max()
         ids = self.index.query(det_xy[lost], reach)
-        ids = ids[ids < settled]
+        ids = ids[settled(ids)]
         if len(ids) < 2:
             return object_ids
         obj_xy, obj_cov = backend.object_positions(ids), backend.object_covariances(ids)
-        corrections = _corrections(robot_xy, det_xy, det_cov, lost, obj_xy)
+        corrections = _corrections(robot_xy, det_xy, det_cov, lost, obj_xy, bounds)
         if len(corrections) == 0:
             return object_ids
         cov = det_cov[:, None] + obj_cov[None, :]
-        on_settled = int((object_ids[object_ids >= 0] < settled).sum())
-        best = _best(corrections, robot_xy, det_xy, obj_xy, cov, self.gate_chi2, on_settled + 2)
+        needed = max(int(settled(object_ids).sum()) + 2, bounds.agreeing)
+        best = _best(
+            corrections, robot_xy, det_xy, obj_xy, cov, self.gate_chi2, needed, bounds.apart
+        )
         if best is None:
             return object_ids
         rows, cols = best
@@ -84,6 +108,7 @@ def _corrections(
     det_cov: np.ndarray,
     lost: np.ndarray,
     obj_xy: np.ndarray,
+    bounds: Bounds,
 ) -> np.ndarray:
     """(h, 3) corrections (dx, dy, dtheta), rotation about the robot first, that put a pair
     of the lost detections on a pair of objects as far apart, within the bounds."""
@@ -96,7 +121,8 @@ def _corrections(
         det_xy[lost] - robot_xy, obj_xy - robot_xy, SPACING_SIGMAS * np.sqrt(spread)
     )
     shift, turn = motions[:, :2], motions[:, 2]
-    return motions[(np.abs(turn) <= MAX_TURN_RAD) & (np.linalg.norm(shift, axis=1) <= MAX_SHIFT_M)]
+    within = (np.abs(turn) <= bounds.turn) & (np.linalg.norm(shift, axis=1) <= bounds.shift)
+    return motions[within]
 
 
 class _Fit(NamedTuple):
@@ -115,12 +141,17 @@ def _best(
     cov: np.ndarray,  # (m, k, 2, 2)
     gate_chi2: float,
     needed: int,
+    apart: float | None = None,
 ) -> tuple[np.ndarray, np.ndarray] | None:
     """The (detections, objects) the best correction matches within the gate, if it
-    matches at least `needed` and no distinct correction matches as many."""
+    matches at least `needed` and no distinct correction (`Bounds.apart`) matches as many."""
+
+    def moved_by(correction: np.ndarray) -> np.ndarray:
+        return turned(det_xy - robot_xy, correction[2]) + robot_xy + correction[:2]
+
     fits = []
     for correction in corrections:
-        moved = turned(det_xy - robot_xy, correction[2]) + robot_xy + correction[:2]
+        moved = moved_by(correction)
         cost = mahalanobis(obj_xy[None, :, :] - moved[:, None, :], cov)
         if (cost <= gate_chi2).any(axis=1).sum() < needed:
             continue
@@ -131,10 +162,16 @@ def _best(
         return None
     fits.sort(key=lambda f: (-f.matched, f.cost))
     top = fits[0]
+    top_moved = moved_by(top.correction)
     for other in fits[1:]:
         if other.matched < top.matched:
             break
-        apart = other.correction - top.correction
-        if np.hypot(*apart[:2]) > DISTINCT[0] or abs(apart[2]) > DISTINCT[1]:
+        if apart is not None:
+            gap = np.median(np.linalg.norm(moved_by(other.correction) - top_moved, axis=1))
+            distinct = bool(gap > apart)
+        else:
+            d = other.correction - top.correction
+            distinct = np.hypot(*d[:2]) > DISTINCT[0] or abs(d[2]) > DISTINCT[1]
+        if distinct:
             return None  # two places fit as well: not sure where it is
     return top.rows, top.cols

@@ -1,6 +1,7 @@
 """The maintenance stage (sec. 2.6.3): young objects in view confirmed or dropped, objects
-closer than d_inter merged, a returning robot's copies of old objects merged into them,
-rarely seen uncertain objects pruned; at the end of a survey, those still unsure judged.
+closer than d_inter merged, a returning robot's copies of old objects merged into them
+(those it started since it left the map kept apart until then), rarely seen uncertain
+objects pruned; at the end of a survey, those still unsure judged.
 Each step looks only around what changed."""
 
 from __future__ import annotations
@@ -10,8 +11,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from agrislam.association.loop_closure import LoopCloser
+from agrislam.association.loop_closure import LoopCloser, Rule
 from agrislam.association.range_outliers import RangeOutliers
+from agrislam.association.returning import CONSTELLATION_AGREEING, PLACE_SPACINGS, Returns
 from agrislam.backend import GraphBackend
 from agrislam.config import MaintenanceConfig
 from agrislam.estimation.point_spacing import PointSpacing
@@ -39,11 +41,11 @@ class Maintainer:
         map_state: MapState,
         backend: GraphBackend,
         spacing: PointSpacing,
-        safeguards: tuple[Merger, LoopCloser, RangeOutliers],
+        safeguards: tuple[Merger, LoopCloser, RangeOutliers, Returns],
         first_own: int,
     ) -> None:
         self.config, self.map, self.backend, self.spacing = config, map_state, backend, spacing
-        self.merger, self.loops, self.outliers = safeguards
+        self.merger, self.loops, self.outliers, self.returns = safeguards
         self.existence = Existence(config)
         self.first_own = first_own  # a saved map's plants come first: they are not judged
         self._after_fold = AfterFold()
@@ -80,13 +82,28 @@ class Maintainer:
         if len(match.object_ids):  # (d_inter is known once there are detections)
             self.merger.saw(match.object_ids, match.placed.xy, 2.0 * self.spacing.d_inter)
         result = self._merge_and_prune(touched, match.t)
-        objects = self.map.objects
-        robot = match.robot_index
-        loop = self.loops.pairs(robot, match.t, objects, self.backend, noise_variance)
+        loop = self._close_loop(match, noise_variance)
         result.merged += self._merge(loop)
         result.loops = int(bool(loop))
-        result.pruned += self._prune(objects.active(dropped).tolist())
+        result.pruned += self._prune(self.map.objects.active(dropped).tolist())
         return result
+
+    def _close_loop(self, match: FrameMatch, noise_variance: float) -> list[tuple[int, int]]:
+        """(old, new) pairs of the frame's robot's loop: its constellation on the map, by a
+        small motion as well while it is returning (then it is back), else by a large one."""
+        objects, robot, returns = self.map.objects, match.robot_index, self.returns
+        away = returns.away(robot)
+        if away is None:
+            hidden = returns.hidden(objects)
+            return self.loops.pairs(robot, match.t, objects, self.backend, noise_variance, hidden)
+        own = returns.constellation(robot, objects)
+        apart = PLACE_SPACINGS * self.spacing.d_inter
+        rule = Rule(CONSTELLATION_AGREEING, 0.0, away.shift, away.turn, apart)
+        hidden = returns.hidden(objects, robot)
+        loop = self.loops.returned(robot, own, rule, objects, self.backend, noise_variance, hidden)
+        if loop:
+            returns.back(robot, match.chain)
+        return loop
 
     def finish(self, t: float, poses: Callable[[], list[np.ndarray]]) -> MaintenanceResult:
         """End of the survey: the young uncertain objects still in their grace period go
@@ -111,7 +128,8 @@ class Maintainer:
         touched = objects.active(touched)
         if cfg.merge and len(touched):
             positions, d_inter = self.backend.object_positions, self.spacing.d_inter
-            pairs = self.merger.pairs(touched, self.map.index, positions, objects, d_inter)
+            apart = self.returns.hidden(objects)
+            pairs = self.merger.pairs(touched, self.map.index, positions, objects, d_inter, apart)
             result.merged = self._merge(pairs)
         if cfg.prune:
             result.pruned = self._prune(prune_due(objects, t, cfg, grace))

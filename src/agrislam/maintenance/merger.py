@@ -8,7 +8,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from agrislam.mapping.objects import ObjectTable
+from agrislam.mapping.objects import NO_OBJECTS, ObjectTable
 from agrislam.mapping.spatial_index import SpatialIndex
 
 # two near objects seen in one frame in more than this share of the frames that saw the
@@ -102,11 +102,13 @@ class Merger:
         positions: Callable[[np.ndarray], np.ndarray],  # ids -> (k, 2) current estimates
         objects: ObjectTable,
         d_inter: float,
+        apart: np.ndarray = NO_OBJECTS,
     ) -> list[tuple[int, int]]:
         """Pairs (keep, drop) of distinct objects to merge, each object in at most one
-        pair; the better-observed object (then the older) is kept."""
+        pair, none of those kept `apart`; the better-observed object (then the older) is
+        kept."""
         pairs: list[tuple[int, int]] = []
-        used: set[int] = set()
+        used: set[int] = set(apart.tolist())
         n_meas, n_frames = objects.n_meas, objects.n_frames
         for obj, xy in zip(touched.tolist(), positions(touched), strict=True):
             if obj in used:

@@ -14,6 +14,8 @@ from agrislam.semantics.beliefs import BeliefTable
 from agrislam.snapshot import STATUS_ACTIVE
 
 NO_ROBOT = -1
+NO_OBJECTS = np.empty(0, dtype=np.int64)  # an empty set of ids, shared: never written
+NO_OBJECTS.setflags(write=False)
 
 
 @dataclass(frozen=True, slots=True)
