@@ -15,7 +15,7 @@ import numpy as np
 from agrislam.association.gnn import gated_matches
 from agrislam.backend import GraphBackend
 from agrislam.estimation.point_spacing import PointSpacing
-from agrislam.geometry.se2 import pair_motions, rotation, turned
+from agrislam.geometry.se2 import compose_points, pair_motions, rotation
 from agrislam.mapping.births import Births
 from agrislam.mapping.objects import NO_OBJECTS, ObjectTable
 from agrislam.snapshot import STATUS_ACTIVE
@@ -266,7 +266,7 @@ def _count(
 ) -> _Fit:
     """The new points moved, matched one to one to old points within the gate (each
     offset's `variance` per axis)."""
-    moved = turned(new, motion[2]) + motion[:2]
+    moved = compose_points(motion, new)
     cost = ((old[None, :, :] - moved[:, None, :]) ** 2).sum(axis=2) / variance
     rows, cols = gated_matches(cost, gate_chi2)
     return _Fit(len(rows), float(cost[rows, cols].sum()), rows, cols, moved)

@@ -42,9 +42,9 @@ def pair_motions(new: np.ndarray, old: np.ndarray, tolerance: np.ndarray | float
 
 
 def compose_points(poses: np.ndarray, xy: np.ndarray) -> np.ndarray:
-    """(n, 2) each point of `xy` (n, 2), given in the frame of its pose of `poses` (n, 3),
-    expressed in the poses' parent frame."""
-    return turned(xy, poses[:, 2]) + poses[:, :2]
+    """(n, 2) the points `xy` (n, 2), given in the frame of one pose (3,) or each in the
+    frame of its own of `poses` (n, 3), expressed in the poses' parent frame."""
+    return turned(xy, poses[..., 2]) + poses[..., :2]
 
 
 def compose(a: np.ndarray, b: np.ndarray) -> np.ndarray:
