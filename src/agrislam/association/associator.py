@@ -147,12 +147,12 @@ class Associator:
         pose says so (association/rejoin.py): within a metre for a robot on the map, within
         its drift's reach and with AGREEING landmarks for a returning one, which is then
         back; a robot whose frame went to mapped objects counts its drift from here."""
-        objects, returns = self.map.objects, self.returns
+        returns = self.returns
         away = returns.away(robot_index)
+        unsettled = returns.hidden(self.map.objects)  # a returning robot's own ones too
         if away is None:
-            bounds = Bounds(unsettled=returns.hidden(objects))
+            bounds = Bounds(unsettled=unsettled)
         else:
-            unsettled = returns.hidden(objects)  # its own constellation too
             apart = PLACE_SPACINGS * self.spacing.d_inter
             bounds = Bounds(away.shift, away.turn, AGREEING, unsettled, apart)
         xy = self.backend.current_pose(robot)[:2]
