@@ -183,13 +183,8 @@ def fitted(pairs: list[tuple[Sighting, Sighting]], start: SensorTerms | None) ->
     now = _columns([p[1] for p in pairs])
     span = now["t"] - then["t"]
 
-    def placed(sighting: dict[str, np.ndarray], terms: np.ndarray) -> np.ndarray:
-        local = camera_point(
-            sighting["range"],
-            sighting["bearing"],
-            sighting["velocity"],
-            np.tile(terms, (len(span), 1)),
-        )
+    def placed(sighting: dict[str, np.ndarray], tiled: np.ndarray) -> np.ndarray:
+        local = camera_point(sighting["range"], sighting["bearing"], sighting["velocity"], tiled)
         return se2.compose_points(sighting["pose"], local)
 
     reach = 0.5 * (then["range"] + now["range"])  # as logged
@@ -198,10 +193,10 @@ def fitted(pairs: list[tuple[Sighting, Sighting]], start: SensorTerms | None) ->
     )
 
     def residuals(terms: np.ndarray) -> np.ndarray:
-        a, b = placed(then, terms), placed(now, terms)
+        tiled = np.tile(terms, (len(span), 1))  # the terms, one row per pair
+        a, b = placed(then, tiled), placed(now, tiled)
         # the spread shrinks with the ranges the terms give: shrinking every range would
         # otherwise shrink the noise's differences and pass for a better fit
-        tiled = np.tile(terms, (len(span), 1))
         shrunk = 0.5 * sum(range_factor(s["bearing"] - terms[2], tiled) for s in (then, now))
         sigma = logged_sigma / shrunk
         return np.r_[((b - a) / sigma[:, None]).ravel(), (terms - NEUTRAL) / PRIOR_SIGMA]
