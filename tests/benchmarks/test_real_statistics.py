@@ -8,19 +8,11 @@ import pytest
 from agrislam.sim.arena import ArenaSimulator
 from agrislam.sim.arena_config import ArenaConfig
 from benchmark_module import load_benchmark
+from quiet_arena import QUIET_ODOMETRY
 
-QUIET_ODOMETRY = {
-    "sigma_x_per_sqrt_m": 0.0,
-    "sigma_y_per_sqrt_m": 0.0,
-    "sigma_theta_per_sqrt_m": 0.0,
-    "sigma_theta_per_sqrt_rad": 0.0,
-    "sigma_per_sqrt_s": (1e-9, 1e-9, 1e-9),
-    "heading_bias_per_m": 0.0,
-}
 EFFECTS = {
     "odometry": {
         **QUIET_ODOMETRY,  # the lag is found to the step on clean odometry
-        "scale_bias": 0.0,
         "effects": {"clock_offset_s": 0.4, "turn_scale_spread": 0.1},
     },
     "camera": {

@@ -27,6 +27,7 @@ from agrislam.sim.landmarks import clustered_landmarks
 from agrislam.sim.odometry import drifting_odometry, increments, noisy_odometry
 from agrislam.sim.range_bearing import observe
 from agrislam.sim.simulator import Simulator
+from quiet_arena import QUIET_ODOMETRY
 
 LANDMARKS = clustered_landmarks(ArenaConfig().arena, np.random.default_rng(3)).xy
 
@@ -217,16 +218,7 @@ def test_reported_sigmas_and_no_odometry_covariance_as_a_converted_real_log():
 
 
 def _quiet_arena(offset: float) -> ArenaSimulator:
-    odometry = {
-        "sigma_x_per_sqrt_m": 0.0,
-        "sigma_y_per_sqrt_m": 0.0,
-        "sigma_theta_per_sqrt_m": 0.0,
-        "sigma_theta_per_sqrt_rad": 0.0,
-        "sigma_per_sqrt_s": (1e-9, 1e-9, 1e-9),
-        "heading_bias_per_m": 0.0,
-        "scale_bias": 0.0,
-        "effects": {"clock_offset_s": offset},
-    }
+    odometry = {**QUIET_ODOMETRY, "effects": {"clock_offset_s": offset}}
     cfg = {"driving": {"duration_s": 300.0, "n_robots": 1}, "odometry": odometry}
     return ArenaSimulator(ArenaConfig.model_validate(cfg))
 
