@@ -286,3 +286,34 @@ def test_a_bad_meta_stops_lenient_mode_too(small_log, tmp_path):
     result = runner.invoke(app, ["run", str(bad), "-o", str(tmp_path / "o")])
     _one_message(result, 1, "bad_meta.jsonl:1: out_of_bounds: anchor.lat", "contract")
     assert not (tmp_path / "o").exists()
+
+
+# ----------------------------------------------------------- no option deletes an input
+
+
+@pytest.mark.parametrize(
+    ("command", "named"),
+    [
+        (["run", "{log}", "-c", "{out}/metrics.json", "--force"], "--config"),
+        (["simulate", "--plants", "20", "--record", "{out}/map.mcap", "--force"], "--record"),
+    ],
+)
+def test_force_never_replaces_an_input_of_the_run(small_log, tmp_path, command, named):
+    """--force removes an earlier run's outputs: an input among them is refused, untouched."""
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "metrics.json").write_text("{}")
+    (out / "map.mcap").write_bytes(b"\x89MCAP0\r\n")
+    args = [a.format(log=small_log, out=out) for a in command]
+    result = runner.invoke(app, [*args, "--out", str(out)])
+    _one_message(result, 2, named, "this run writes in --out", "(nothing was changed)")
+    assert (out / "metrics.json").read_text() == "{}"
+    assert (out / "map.mcap").read_bytes() == b"\x89MCAP0\r\n"
+
+
+def test_a_season_into_an_earlier_one_is_refused_before_its_logs_are_written(tmp_path):
+    log = tmp_path / "day_000.jsonl"
+    log.write_text("an earlier season's log\n")
+    result = runner.invoke(app, ["simulate", "--days", "0", "7", "--out", str(tmp_path)])
+    _one_message(result, 2, "holds the logs of an earlier season (day_000.jsonl)", "--force")
+    assert log.read_text() == "an earlier season's log\n"

@@ -29,6 +29,7 @@ from agrislam.records import Record
 from agrislam.run.checkpoint import Checkpoints, InputFingerprint, config_identity
 from agrislam.run.health import print_health
 from agrislam.run.pipeline import RunError, RunResult, describe, run_survey
+from agrislam.run.season import SeasonRun
 from agrislam.world import WorldModel
 
 app = typer.Typer(
@@ -142,6 +143,14 @@ def _season(
 
     if sorted(days) != days or len(set(days)) != len(days):
         _fail(f"--days must increase, got {days}", 2)
+    names = [f"day_{day:03g}" for day in days]
+    earlier = [f"{name}.jsonl" for name in names if (out / f"{name}.jsonl").exists()]
+    if earlier and not force:  # each day's run checks its own folder; the logs are here
+        _fail(
+            f"--out {out} holds the logs of an earlier season ({', '.join(earlier)}); use "
+            "--force to replace them, or choose another --out",
+            2,
+        )
     with _user_errors():
         data = load_mapping(config) if config else {}
         base = SimConfig.model_validate({**(data.get("sim") or {}), "seed": seed})
@@ -150,8 +159,7 @@ def _season(
         sim = SeasonSimulator(season_config(base, days))
         out.mkdir(parents=True, exist_ok=True)
     previous = None
-    for d, day in enumerate(days):
-        name = f"day_{day:03g}"
+    for d, name in enumerate(names):
         log = out / f"{name}.jsonl"
         write_log(sim.day_records(d), log)
         console.print(f"[bold]{name}[/]: survey log {escape(str(log))}")
@@ -171,16 +179,20 @@ def history(
     from agrislam.io.sinks.history import read_history
     from agrislam.io.sinks.season_figures import growth_attribute, write_season_figure
     from agrislam.io.sinks.sqlite import load_map
+    from agrislam.run.saved_map import check_map_file, reading
 
     with _user_errors():
-        hist = read_history(map_file)
+        check_map_file(map_file, label="MAP", continuing=False)
+        with reading(map_file, "MAP"):
+            hist = read_history(map_file)
+            wanted = plant is not None or plot is not None
+            schema = load_map(map_file).schema if wanted else None
     if not hist.surveys:
         _fail(f"{map_file}: no history (a map written by an older agrislam)", 1)
     if plant is not None:
         rows = hist.plant(plant)
         if not rows:
             _fail(f"plant {plant} is not in {map_file}", 1)
-        schema = load_map(map_file).schema
         table = Table("survey", "status", "x", "y", "n_meas", "interest", "P(gone)", "beliefs")
         for r in rows:
             gone = "" if r["p_gone"] is None else f"{r['p_gone']:.3f}"
@@ -302,7 +314,14 @@ def _survey(
             )
         source = open_source(path_or_uri, cfg, strict=strict, **sections)
         identity = config_identity(cfg, strict=strict, **sections)
-        with RunFolder(out, force=force, resume=resume) as folder:
+        season = _season_of(prior_map, cfg)
+        inputs = {
+            "the input": Path(path_or_uri) if Path(path_or_uri).exists() else None,
+            "--config": config,
+            "--map": prior_map,
+            "--record": record,
+        }
+        with RunFolder(out, force=force, resume=resume, inputs=inputs) as folder:
             checkpoints = Checkpoints(
                 folder.path / "map.sqlite",
                 InputFingerprint(path_or_uri),
@@ -325,7 +344,7 @@ def _survey(
                         f"mapping {source.name}",
                         checkpoints,
                         resume,
-                        prior_map,
+                        season,
                     )
             except RunError as err:
                 _stopped(err, out, strict)
@@ -475,7 +494,7 @@ def _run(
     what: str,
     checkpoints: Checkpoints,
     resume: bool,
-    prior_map: Path | None = None,
+    season: SeasonRun | None = None,
 ) -> RunResult:
     total = len(records) if isinstance(records, list) else None
     with Progress(
@@ -487,11 +506,6 @@ def _run(
         transient=True,
     ) as progress:
         task = progress.add_task(what, total=total)
-        season = None
-        if prior_map is not None:
-            from agrislam.run.season_outputs import load_season
-
-            season = load_season(prior_map, cfg)
         result = run_survey(
             records,
             WorldModel(cfg),
@@ -510,6 +524,16 @@ def _run(
             else "no checkpoint in --out to resume from: mapped from the first record"
         )
     return result
+
+
+def _season_of(prior_map: Path | None, cfg: AgrislamConfig) -> SeasonRun | None:
+    """The saved map a survey continues, read and checked before its output folder is
+    touched (a bad one is a `MapFileError`)."""
+    if prior_map is None:
+        return None
+    from agrislam.run.season_outputs import load_season
+
+    return load_season(prior_map, cfg)
 
 
 def _record(records: list[Record], path: Path) -> None:

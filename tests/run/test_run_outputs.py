@@ -2,7 +2,8 @@
 old file or the new one, whole), map.sqlite passes PRAGMA integrity_check after a kill in
 the middle of writing it, a run stopped by an error of the core still writes the map of
 what it read, one run at a time per output folder (a lock; a dead owner's lock is taken
-over), and an earlier run's outputs are replaced only with --force, leaving none of them."""
+over), and an earlier run's outputs are replaced only with --force, leaving none of them,
+and never one of the run's own inputs."""
 
 from __future__ import annotations
 
@@ -135,6 +136,22 @@ def test_an_earlier_run_is_replaced_only_with_force_and_leaves_no_file(tmp_path)
     names = {p.name for p in result.outputs}
     assert not stale.exists() and mine.exists()
     assert {p.name for p in out.iterdir()} == names | {"notes.txt"}
+
+
+def test_force_refuses_a_folder_whose_outputs_would_replace_an_input(tmp_path):
+    """An input by another name (a link) or a bag folder the outputs would go into."""
+    out = tmp_path / "run"
+    out.mkdir()
+    (out / "map.sqlite").write_bytes(b"the saved map")
+    os.link(out / "map.sqlite", tmp_path / "day1.sqlite")
+    (tmp_path / "alias").symlink_to(out)
+    for given in (tmp_path / "day1.sqlite", tmp_path / "alias" / "map.sqlite"):
+        with pytest.raises(RunFolderError, match=r"is the map\.sqlite this run writes in --out"):
+            RunFolder(out, force=True, inputs={"--map": given}).open()
+    with pytest.raises(RunFolderError, match=r"lies inside the input .*outside it"):
+        RunFolder(out / "sub", force=True, inputs={"the input": out}).open()
+    assert (out / "map.sqlite").read_bytes() == b"the saved map"
+    assert sorted(p.name for p in out.iterdir()) == ["map.sqlite"]  # not even locked
 
 
 def test_a_run_stopped_by_the_core_still_writes_the_map_so_far(tmp_path, monkeypatch):

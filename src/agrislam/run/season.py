@@ -157,9 +157,10 @@ class SeasonRun:
         local, counts, label = cluster(xy, self.cfg.cluster_radius)
         if robot.dists and len(self.prior.ids):
             start = meta.survey_start if meta is not None and meta.survey_start else 0.0
-            world_beliefs = self.prior.belief_table(
-                self.config.advanced.semantics, self.prior.t_abs - start
-            )
+            # a map without history has no time: its beliefs are as of this survey's start,
+            # as the world takes them
+            saved = self.prior.t_abs - start if np.isfinite(self.prior.t_abs) else 0.0
+            world_beliefs = self.prior.belief_table(self.config.advanced.semantics, saved)
             means = {
                 name: _cluster_mean(np.array(d)[recent], label, len(local))
                 for name, d in robot.dists.items()

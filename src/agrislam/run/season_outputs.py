@@ -16,6 +16,7 @@ from agrislam.io.sinks.csv import write_table
 from agrislam.io.sinks.history import ChainedRows, History, plant_rows, read_history, write_history
 from agrislam.io.sinks.season_figures import growth_attribute, write_season_figure
 from agrislam.io.sinks.sqlite import load_map
+from agrislam.run.saved_map import check_map_file, reading
 from agrislam.run.season import SeasonRun
 from agrislam.season.prior_map import PriorMap
 from agrislam.snapshot import MapSnapshot
@@ -113,12 +114,14 @@ def season_outputs(
 def load_season(path: str | Path, config: AgrislamConfig) -> SeasonRun:
     """A saved map.sqlite as the prior of the next survey, with its history. A map without
     history tables (an older one) has no absolute time: its beliefs are taken as of the new
-    survey's start."""
-    history = read_history(path)
-    t_abs = history.t_abs()
-    prior = PriorMap.from_snapshot(
-        load_map(path), np.nan if t_abs is None else t_abs, history.next_survey or 1
-    )
+    survey's start. `MapFileError` for a file that cannot be continued (run/saved_map.py)."""
+    check_map_file(path)
+    with reading(path):
+        history = read_history(path)
+        t_abs = history.t_abs()
+        prior = PriorMap.from_snapshot(
+            load_map(path), np.nan if t_abs is None else t_abs, history.next_survey or 1
+        )
     season = SeasonRun(prior, config)
     season.history = history
     return season

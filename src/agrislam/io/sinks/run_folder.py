@@ -8,6 +8,9 @@
   the run is told to replace them (`force`): then every one of the old run's files goes
   first, so no stale file of it stays beside the new ones; a run that resumes the
   earlier one (`resume`) keeps them: its map.sqlite holds the checkpoint;
+- a run never removes or overwrites one of its own inputs (`inputs`: the log, the config,
+  the map it continues): one that is a file the run writes in the folder, or a folder the
+  outputs would go into, refuses the run before anything is touched, `force` or not;
 - temporary files a killed run left behind (`sinks.atomic`) are removed."""
 
 from __future__ import annotations
@@ -16,6 +19,7 @@ import json
 import os
 import socket
 import time
+from collections.abc import Mapping
 from pathlib import Path
 from types import TracebackType
 from typing import Any
@@ -56,12 +60,22 @@ class RunFolderError(ValueError):
 class RunFolder:
     """The output folder of one run: `open()` (or `with`) checks and locks it, `close()`
     unlocks it. `force`: replace the outputs of an earlier run found in it; `resume`: carry
-    on the earlier run, its outputs kept (each is replaced when the run ends)."""
+    on the earlier run, its outputs kept (each is replaced when the run ends); `inputs`:
+    the files and folders the run reads or was told to write, by the option that names
+    them ('--map': path), none of which it may replace."""
 
-    def __init__(self, path: str | Path, *, force: bool = False, resume: bool = False) -> None:
+    def __init__(
+        self,
+        path: str | Path,
+        *,
+        force: bool = False,
+        resume: bool = False,
+        inputs: Mapping[str, str | Path | None] | None = None,
+    ) -> None:
         self.path = Path(path)
         self.force = force
         self.resume = resume
+        self.inputs = {k: Path(v) for k, v in (inputs or {}).items() if v is not None}
         self.created = False
         self.replaced: list[str] = []
         self._fd: int | None = None
@@ -81,6 +95,7 @@ class RunFolder:
         path = self.path
         if path.exists() and not path.is_dir():
             raise RunFolderError(f"--out {path} is a file, not a folder: give a folder")
+        self._spare_inputs()
         try:
             self.created = not path.exists()
             path.mkdir(parents=True, exist_ok=True)
@@ -154,6 +169,23 @@ class RunFolder:
             f"another --out{hint}"
         )
 
+    def _spare_inputs(self) -> None:
+        """Refuse a run whose outputs would replace one of its inputs (`--force` would
+        delete it first; the run's own write would overwrite it), or go inside an input
+        folder (among a bag's files)."""
+        for option, given in self.inputs.items():
+            if given.is_dir() and _within(self.path, given):
+                raise RunFolderError(
+                    f"--out {self.path} lies inside {option} {given}: the outputs would go "
+                    "among the input's files; choose an --out outside it"
+                )
+            name = next((n for n in OUTPUT_NAMES if _same_path(given, self.path / n)), None)
+            if name is not None:
+                raise RunFolderError(
+                    f"{option} {given} is the {name} this run writes in --out {self.path}, "
+                    "so it would be replaced: choose another --out (nothing was changed)"
+                )
+
     def _clear(self) -> None:
         """Leftovers of killed runs go; an earlier run's outputs go with `force`, else
         the run is refused."""
@@ -193,6 +225,23 @@ def _same_file(fd: int, path: Path) -> bool:
     try:
         return os.path.samestat(os.fstat(fd), os.stat(path))
     except FileNotFoundError:
+        return False
+
+
+def _same_path(a: Path, b: Path) -> bool:
+    """Whether two paths name one file: the same path once links and '..' are resolved,
+    or (both existing) the same file by another name (a hard link)."""
+    try:
+        return a.resolve() == b.resolve() or (a.exists() and b.exists() and a.samefile(b))
+    except OSError:
+        return False
+
+
+def _within(path: Path, folder: Path) -> bool:
+    """Whether `path` is `folder` or lies inside it, links resolved."""
+    try:
+        return path.resolve().is_relative_to(folder.resolve())
+    except OSError:
         return False
 
 
