@@ -317,3 +317,23 @@ def test_a_season_into_an_earlier_one_is_refused_before_its_logs_are_written(tmp
     result = runner.invoke(app, ["simulate", "--days", "0", "7", "--out", str(tmp_path)])
     _one_message(result, 2, "holds the logs of an earlier season (day_000.jsonl)", "--force")
     assert log.read_text() == "an earlier season's log\n"
+
+
+def test_history_plot_makes_its_folder_and_an_unwritable_one_is_one_message(small_run, tmp_path):
+    out, _ = small_run
+    plot = tmp_path / "new" / "folder" / "season.png"
+    result = runner.invoke(app, ["history", str(out / "map.sqlite"), "--plot", str(plot)])
+    assert result.exit_code == 0, result.output
+    assert plot.read_bytes().startswith(b"\x89PNG")
+    (tmp_path / "afile").write_text("x")
+    blocked = tmp_path / "afile" / "season.png"
+    result = runner.invoke(app, ["history", str(out / "map.sqlite"), "--plot", str(blocked)])
+    _one_message(result, 2, f"--plot {blocked} cannot be written", "choose a file in a folder")
+
+
+def test_a_bad_source_section_of_the_config_is_one_line(tmp_path):
+    config = tmp_path / "c.yaml"
+    config.write_text("sim:\n  field:\n    plant_spacing: [-0.4, 0.5]\n")
+    result = runner.invoke(app, ["run", "sim:?plants=20", "-c", str(config), "-o", str(tmp_path)])
+    _one_message(result, 2, "SimConfig: field: plant_spacing: need 0 <= low <= high")
+    assert len(result.output.strip().splitlines()) == 1

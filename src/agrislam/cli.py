@@ -16,6 +16,7 @@ from typing import Annotated, Any, NoReturn
 
 import typer
 import yaml
+from pydantic import ValidationError
 from rich.console import Console
 from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
@@ -218,7 +219,9 @@ def history(
             table.add_row(str(survey), day, "yes" if localised else "-", *counts)
         console.print(table)
     if plot is not None:
-        write_season_figure(hist, plot, growth_attribute(load_map(map_file).schema))
+        with _user_errors(), _writing("--plot", plot):
+            plot.parent.mkdir(parents=True, exist_ok=True)
+            write_season_figure(hist, plot, growth_attribute(schema))
         console.print(f"wrote {escape(str(plot))}")
 
 
@@ -396,6 +399,8 @@ def _user_errors() -> Iterator[None]:
     except Exception as err:
         if DEBUG["on"]:
             raise
+        if isinstance(err, ValidationError):  # a source's config section (sim:, bag:)
+            _fail(f"{err.title}: {_problems(err)}", 2)
         if isinstance(err, (OSError, ValueError, yaml.YAMLError)):  # config, source, --out
             _fail(str(err) or describe(err), 2)
         _fail(
@@ -405,16 +410,31 @@ def _user_errors() -> Iterator[None]:
         )
 
 
+@contextmanager
+def _writing(option: str, path: Path) -> Iterator[None]:
+    """A file the user named that cannot be written (no such folder and none can be made,
+    no permission, a folder of that name) as one line naming the option."""
+    try:
+        yield
+    except OSError as err:
+        why = err.strerror or str(err)
+        raise ValueError(
+            f"{option} {path} cannot be written ({why}): choose a file in a folder you may write to"
+        ) from None
+
+
 def _validated(model: Any, data: dict[str, Any], path: Path | None) -> Any:
     """The config model of `data`; bad values are one line naming each key."""
-    from pydantic import ValidationError
-
     try:
         return model.model_validate(data)
     except ValidationError as err:
         where = f"config {path}" if path else "config"
-        problems = "; ".join(_problem(e) for e in err.errors())
-        raise ValueError(f"{where}: {problems}") from None
+        raise ValueError(f"{where}: {_problems(err)}") from None
+
+
+def _problems(err: ValidationError) -> str:
+    """Every problem of a pydantic error on one line."""
+    return "; ".join(_problem(e) for e in err.errors())
 
 
 def _problem(error: Any) -> str:
