@@ -337,3 +337,35 @@ def test_a_bad_source_section_of_the_config_is_one_line(tmp_path):
     result = runner.invoke(app, ["run", "sim:?plants=20", "-c", str(config), "-o", str(tmp_path)])
     _one_message(result, 2, "SimConfig: field: plant_spacing: need 0 <= low <= high")
     assert len(result.output.strip().splitlines()) == 1
+
+
+# ------------------------------------------------------------------- compressed logs
+
+
+def test_a_truncated_gzip_log_maps_the_lines_before_the_cut(small_log, tmp_path):
+    """A .jsonl.gz cut short (a copy that stopped) ended the run with EOFError and no outputs:
+    the lines before the cut are mapped, the cut is a bad line of skipped.csv."""
+    import gzip
+
+    data = gzip.compress(small_log.read_bytes())
+    cut = tmp_path / "cut.jsonl.gz"
+    cut.write_bytes(data[: len(data) * 2 // 3])
+    result = runner.invoke(app, ["run", str(cut), "-o", str(tmp_path / "l")])
+    assert result.exit_code == 0, result.output
+    assert "1 truncated" in result.output and "the file was cut short" in result.output
+    metrics = json.loads((tmp_path / "l" / "metrics.json").read_text())
+    assert metrics["input"]["skipped"] == {"truncated": 1}
+    assert metrics["objects"]["mapped_fraction"] > 0.3
+    skipped = (tmp_path / "l" / "skipped.csv").read_text().splitlines()
+    assert skipped[1].split(",")[1] == "truncated"
+    strict = runner.invoke(app, ["run", str(cut), "--strict", "-o", str(tmp_path / "s")])
+    _one_message(strict, 1, "cut.jsonl.gz:", "truncated: the file was cut short", "--lenient")
+    assert (tmp_path / "s" / "map.sqlite").exists()  # the map of the lines before the cut
+
+
+def test_a_plain_text_log_named_gz_is_one_message(small_log, tmp_path):
+    named = tmp_path / "survey.jsonl.gz"
+    named.write_bytes(small_log.read_bytes())
+    result = runner.invoke(app, ["run", str(named), "-o", str(tmp_path / "o")])
+    _one_message(result, 2, "is named .gz but is not gzip-compressed", "rename it to survey.jsonl")
+    assert not (tmp_path / "o").exists()

@@ -1,6 +1,7 @@
 import gzip
 import io
 import json
+import zlib
 
 import numpy as np
 import pytest
@@ -443,3 +444,61 @@ def test_reader_streams_without_loading_the_file(tmp_path):
     assert first.t == 0.0
     # only the first lines were parsed so far
     assert next(reader).t == 1.0
+
+
+def _gzip_log(n: int = 400) -> tuple[bytes, bytes]:
+    """A log of a meta and `n` odometry lines: its text and the text gzip-compressed."""
+    odom = [json.dumps({**ODOM, "t": 1.0 + 0.1 * k}) + "\n" for k in range(n)]
+    text = "".join([json.dumps(META) + "\n", *odom]).encode()
+    return text, gzip.compress(text, mtime=0)
+
+
+@pytest.mark.parametrize("keep", [0.5, 0.9])
+def test_a_gzip_log_cut_short_gives_every_line_before_the_cut(tmp_path, keep):
+    """A .jsonl.gz cut short raised EOFError: now each whole line before the cut is read,
+    and the cut is one bad line (where the text stops) saying how much was read."""
+    _, packed = _gzip_log()
+    cut = packed[: int(len(packed) * keep)]
+    path = tmp_path / "cut.jsonl.gz"
+    path.write_bytes(cut)
+    available = zlib.decompressobj(wbits=31).decompress(cut)  # all a reader could recover
+    whole = available.count(b"\n")
+    reader = read_log(path, strict=False)
+    records = list(reader)
+    assert len(records) == whole  # the meta and every whole odometry line
+    assert reader.report.skipped == {"truncated": 1}
+    (bad,) = reader.report.bad_lines
+    assert bad.line == whole + 1
+    assert f"breaks off after {len(available):,} bytes of text" in bad.message
+    with pytest.raises(LogError, match=rf"cut.jsonl.gz:{whole + 1}: truncated: the file was cut"):
+        list(read_log(path, strict=True))
+
+
+def test_a_gzip_log_without_its_end_or_with_a_wrong_checksum_keeps_every_line(tmp_path):
+    text, packed = _gzip_log(n=50)
+    lines = text.count(b"\n")
+    path = tmp_path / "log.jsonl.gz"
+    path.write_bytes(packed[:-8])  # the stream's end: its checksum and length are missing
+    reader = read_log(path, strict=False)
+    assert len(list(reader)) == lines and reader.report.skipped == {"truncated": 1}
+    assert reader.report.bad_lines[0].line == lines + 1
+    path.write_bytes(packed[:-8] + b"\0\0\0\0" + packed[-4:])  # a checksum that fails
+    reader = read_log(path, strict=False)
+    assert len(list(reader)) == lines and reader.report.skipped == {"bad_compression": 1}
+    assert "CRC check failed" in reader.report.bad_lines[0].message
+
+
+@pytest.mark.parametrize(
+    ("content", "says"),
+    [
+        (b'{"type": "meta", "version": 1}\n', r"not gzip-compressed: it reads as a plain-text log"),
+        (b"BZh91AY&SY" + bytes(100), r"begins with bytes 42 5a 68 39\): .*another compression"),
+    ],
+)
+def test_a_file_named_gz_that_is_no_gzip_is_refused_when_opened(tmp_path, content, says):
+    from agrislam.io.sources import open_source
+
+    path = tmp_path / "survey.jsonl.gz"
+    path.write_bytes(content)
+    with pytest.raises(ValueError, match=says):
+        open_source(path)

@@ -62,7 +62,9 @@ def open_source(
     if is_log:
         from agrislam.io.sources.jsonl import read_log
 
-        return read_log(path, strict=strict, config=config)
+        log = read_log(path, strict=strict, config=config)
+        log.check()  # a misnamed file is a clear error now, not after a run started
+        return log
     if is_bag:
         from agrislam.io.sources.bag_config import BagSourceConfig
         from agrislam.io.sources.rosbag import BagSource

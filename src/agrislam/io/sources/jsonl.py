@@ -4,7 +4,7 @@ at a bad one (strict) or skips and counts it (lenient); a bad meta line always s
 
 from __future__ import annotations
 
-import gzip
+import io
 import json
 import math
 import re
@@ -25,6 +25,7 @@ from agrislam.config import (
 )
 from agrislam.config.limits import first_error
 from agrislam.io.sources.clock import Rejected, RobotClocks
+from agrislam.io.sources.compressed import GzipText, check_gzip
 from agrislam.io.sources.log_report import LogError, ReadReport
 from agrislam.io.sources.odometry_gaps import OdometryGaps
 from agrislam.io.sources.validate import REASONS, BadRecordError, check_record, within
@@ -350,12 +351,6 @@ class _Parser:
         return TruthObject(id=str(oid), xy=_array(obj, "xy", (2,)), attributes=attrs)
 
 
-def _open(path: Path, mode: str) -> IO[bytes]:
-    if path.suffix == ".gz":
-        return gzip.open(path, mode + "b")  # type: ignore[return-value]
-    return open(path, mode + "b")
-
-
 def _lines(f: IO[bytes], limit: int) -> Iterator[tuple[int, bytes | str | None]]:
     """(number, line) of each line; None for a line longer than `limit` bytes, which is
     skipped to its end unread (a line of any length costs no memory)."""
@@ -407,19 +402,30 @@ class LogReader:
     def records(self) -> Iterator[Record]:
         return iter(self)
 
+    def check(self) -> None:
+        """ValueError now, before a run, for a file named .gz that holds no gzip data."""
+        if isinstance(self.source, (str, Path)) and Path(self.source).suffix == ".gz":
+            check_gzip(Path(self.source))
+
     def __iter__(self) -> Iterator[Record]:
         self.report = ReadReport(source=self.report.source)
-        if isinstance(self.source, (str, Path)):
-            with _open(Path(self.source), "r") as f:
-                yield from self._records(f)
-        else:
+        if not isinstance(self.source, (str, Path)):
             yield from self._records(self.source)
+        elif Path(self.source).suffix == ".gz":
+            text = GzipText(Path(self.source))
+            with io.BufferedReader(text) as f:
+                yield from self._records(f, text)
+        else:
+            with open(self.source, "rb") as f:
+                yield from self._records(f)
 
-    def _records(self, f: IO[bytes]) -> Iterator[Record]:
+    def _records(self, f: IO[bytes], compressed: GzipText | None = None) -> Iterator[Record]:
+        """The records of the lines of `f`; `compressed`: the stream under `f`, whose break
+        (a .gz file cut short or damaged) is reported as bad input after the lines before it."""
         parser = _Parser(self.schema, self.limits)
         clocks: RobotClocks[tuple[int, Record]] = RobotClocks(self.limits)
         self._gaps = OdometryGaps(self.default_odom_cov)
-        report, first = self.report, True
+        report, first, broken_line = self.report, True, None
         for n, raw in _lines(f, self.limits.max_line_bytes):
             report.lines = n
             obj = None
@@ -437,6 +443,9 @@ class LogReader:
                 self._lost_odometry(obj)
                 continue
             except LogError as err:
+                if err.reason == "truncated" and compressed and compressed.broken:
+                    broken = compressed.broken  # the line the stream broke off in
+                    err, broken_line = LogError(n, broken.reason, broken.message, err.source), n
                 self._bad(err)
                 self._lost_odometry_line(raw)
                 continue
@@ -447,6 +456,9 @@ class LogReader:
             self._reject(rejected)
             yield from self._yield(released)
         self._reject(clocks.finish())
+        broken = compressed.broken if compressed is not None else None
+        if broken is not None and broken_line is None:  # it broke off between two lines
+            self._bad(LogError(report.lines + 1, broken.reason, broken.message, report.source))
 
     def _lost_odometry(self, obj: Any) -> None:
         """An odometry line that could not be read: its robot's motion is bridged."""

@@ -35,7 +35,8 @@ from agrislam.records import (
 # line can be malformed, and the bounds this project adds (docs/log-format.md)
 REASONS = {
     "not_json": "not a JSON object",
-    "truncated": "the file ends in the middle of this line",
+    "truncated": "the file ends in the middle of this line, or a .gz file before it",
+    "bad_compression": "a .gz file's data is damaged (found here)",
     "bad_encoding": "not UTF-8",
     "line_too_long": "a line longer than sensor.limits.max_line_bytes",
     "unknown_type": "unknown record type",
