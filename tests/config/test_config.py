@@ -249,3 +249,30 @@ def test_a_removed_association_key_is_ignored_with_a_warning():
     with pytest.warns(FutureWarning, match="weak_tentative is ignored: .*maintenance.existence"):
         cfg = AgrislamConfig.model_validate({"association": {"weak_tentative": False}})
     assert cfg.advanced.maintenance.existence is None  # left to the survey
+
+
+@pytest.mark.parametrize(
+    ("data", "where"),
+    [
+        ({"advanced": {"gnss": {"fix_sigma": {"rtk_fixed": -0.01}}}}, "fix_sigma.rtk_fixed"),
+        ({"advanced": {"gnss": {"fix_sigma": {"dgps": 0.0}}}}, "fix_sigma.dgps"),
+        ({"advanced": {"gnss": {"fix_sigma": {"rtk_fix": 0.01}}}}, "fix_sigma.rtk_fix"),
+        ({"advanced": {"season": {"start_tolerance": [0.5, -0.2]}}}, "start_tolerance.1"),
+    ],
+)
+def test_a_sigma_or_tolerance_that_is_not_positive_is_refused(data: dict, where: str):
+    """A negative GNSS sigma floor was accepted (squared, it passed for a positive one; zero
+    left an RTK fix without noise), and a misspelt fix type silently dropped the real one."""
+    with pytest.raises(ValidationError, match=where):
+        AgrislamConfig.model_validate(data)
+
+
+def test_the_fix_types_of_the_config_are_those_of_the_records():
+    from typing import get_args
+
+    from agrislam.config.gnss import FixType
+    from agrislam.records import FIX_TYPES
+
+    assert set(get_args(FixType)) == set(FIX_TYPES)
+    defaults = {"rtk_fixed": 0.01, "rtk_float": 0.2, "dgps": 0.5, "single": 1.5}
+    assert AgrislamConfig().advanced.gnss.fix_sigma == defaults

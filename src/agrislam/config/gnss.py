@@ -5,9 +5,12 @@ from __future__ import annotations
 
 from typing import Literal
 
-from pydantic import Field
+from pydantic import Field, PositiveFloat
 
 from agrislam.config.limits import StrictModel as _Strict
+
+# a fix's type, as records.FIX_TYPES names them (the config imports no records)
+FixType = Literal["none", "single", "dgps", "rtk_float", "rtk_fixed"]
 
 
 class GnssSection(_Strict):
@@ -23,7 +26,7 @@ class AdvancedGnss(_Strict):
 
     enabled: bool = True
     # sigma floor per fix type (m, horizontal): a receiver's covariance is trusted no lower
-    fix_sigma: dict[str, float] = Field(
+    fix_sigma: dict[FixType, PositiveFloat] = Field(
         default_factory=lambda: {"rtk_fixed": 0.01, "rtk_float": 0.2, "dgps": 0.5, "single": 1.5},
         description="m, the least horizontal sigma each fix type is taken with; a type not "
         "named here (none) is never used",

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from pydantic import Field
+from pydantic import Field, PositiveFloat
 
 from agrislam.config.limits import StrictModel as _Strict
 
@@ -44,7 +44,7 @@ class SeasonConfig(_Strict):
     give_up_after_s: float = Field(
         300.0, gt=0.0, description="s of driving without a fix: map the survey as a new field"
     )
-    start_tolerance: tuple[float, float] = Field(
+    start_tolerance: tuple[PositiveFloat, PositiveFloat] = Field(
         (0.5, 0.2), description="(m, rad) a given start pose may differ from the fix"
     )
     gone_prior: float = Field(
