@@ -10,8 +10,8 @@ from typing import Any, ClassVar, Literal
 from pydantic import Field, PositiveFloat, model_validator
 
 from agrislam.config.gnss import AdvancedGnss
-from agrislam.config.live import AdvancedLive
 from agrislam.config.limits import InputLimits, StrictModel
+from agrislam.config.live import AdvancedLive
 from agrislam.config.season import SeasonConfig
 
 # association keys renamed since 0.1: old -> new (read with a FutureWarning)

@@ -1,16 +1,19 @@
 """Messages into records one at a time, as they arrive: the bag source's reading (roles of
 topics by type or config, robots by namespace, clocks, tf, the RGB-D front end, validation)
 applied to a stream whose topics appear while it runs. Fed the messages of a recording in
-its order, it gives the records `agrislam run` reads from that recording, in that order."""
+its order, it gives the records `agrislam run` reads from that recording, in that order
+(but for a stamp far ahead of its topic's, which it passes on at once: see `__init__`)."""
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import Any
 
 from agrislam.config import AgrislamConfig
 from agrislam.io.sources.bag_config import BagSourceConfig
 from agrislam.io.sources.bag_report import BagReport, SkipError
+from agrislam.io.sources.clock import RobotClocks
 from agrislam.io.sources.rgbd import RgbdFrames
 from agrislam.io.sources.rosbag import _BagReader
 from agrislam.records import Record
@@ -26,6 +29,11 @@ class LiveDecoder(_BagReader):
         self.role_of: dict[str, str] = {}
         self.odom_robots: set[str] = set()
         self.rgbd = RgbdFrames(self.bag, self.perception, self, self._roles_quietly(), {})
+        # a bag's reader holds a stamp far ahead of its topic's until the next one tells a
+        # spike from a jump, and sorts what it held back into place at the end; live, a held
+        # frame would come out after later odometry, and gaps are what dropped frames leave
+        limits = config.advanced.sensor.limits.model_copy(update={"time_jump_s": math.inf})
+        self.clocks = RobotClocks(limits, "topic")
 
     def _roles_quietly(self) -> dict[str, list[str]]:
         """The roles of the topics seen so far; what is missing is no issue yet (it may come)."""

@@ -4,9 +4,9 @@ the offline pipeline (`run_survey`) on that stream, so the outputs at the end ar
 `agrislam run`. Between records it publishes the map (at most `live.publish_rate` Hz, as
 soon as a frame is mapped) and its status.
 
-When the mapper falls behind, the queue does not grow: past `live.queue_size` the oldest
-waiting detection frame (or image) is dropped and counted; odometry, GNSS, tf and meta are
-dropped only when nothing else waits. Messages are taken in arrival order, never held for
+When the mapper falls behind, the queue does not grow: past `live.queue_size` detection
+frames (and images) waiting, the oldest is dropped and counted; odometry, GNSS, tf and meta,
+small and what every later frame builds on, wait up to `ESSENTIAL_FACTOR` times that. Messages are taken in arrival order, never held for
 a robot that went silent."""
 
 from __future__ import annotations
@@ -49,6 +49,7 @@ DROPPABLE = frozenset({DETECTION3D_ARRAY, DETECTION2D_ARRAY, IMAGE})
 STATUS_TOPIC = "/agrislam/status"
 RECORDING = "live.mcap"
 LATENCIES_KEPT = 100_000
+ESSENTIAL_FACTOR = 64  # odometry, GNSS, tf, meta queued at most this many times queue_size
 STATUS_PERIOD_S = 0.02  # the status goes out at most this often while messages come
 
 
@@ -117,6 +118,7 @@ class LiveMapper:
         self.world = _LiveWorld(config, self._mapped)
         self.stats = LiveStats()
         self.queue: deque[tuple[Received, float]] = deque()
+        self.frames_queued = 0  # detection frames and images in the queue
         self.ready = threading.Condition()
         self.stopping = threading.Event()
         self.period = 1.0 / self.live.publish_rate
@@ -149,16 +151,20 @@ class LiveMapper:
             self.recording.write(sample.topic, sample.msgtype, sample.payload, sample.received_ns)
         with self.ready:
             self.stats.received += 1
-            if len(self.queue) >= self.live.queue_size:
-                self._drop_one()
+            droppable = sample.msgtype in DROPPABLE
+            if droppable and self.frames_queued >= self.live.queue_size:
+                self._drop(next(i for i, (s, _) in enumerate(self.queue) if s.msgtype in DROPPABLE))
+            elif len(self.queue) >= ESSENTIAL_FACTOR * self.live.queue_size:
+                self._drop(0)
             self.queue.append((sample, time.perf_counter()))
+            self.frames_queued += droppable
             self.stats.most_queued = max(self.stats.most_queued, len(self.queue))
             self.ready.notify()
 
-    def _drop_one(self) -> None:
-        at = next((i for i, (s, _) in enumerate(self.queue) if s.msgtype in DROPPABLE), 0)
+    def _drop(self, at: int) -> None:
         dropped, _ = self.queue[at]
         del self.queue[at]
+        self.frames_queued -= dropped.msgtype in DROPPABLE
         self.stats.dropped[dropped.topic] += 1
 
     def stop(self) -> None:
@@ -209,7 +215,9 @@ class LiveMapper:
             if not self.queue:
                 return None
             self.stats.taken += 1
-            return self.queue.popleft()
+            item = self.queue.popleft()
+            self.frames_queued -= item[0].msgtype in DROPPABLE
+            return item
 
     def _announce(self, sample: Received) -> None:
         """A topic taken through a pattern gets its subscriber's liveliness token."""
@@ -237,7 +245,7 @@ class LiveMapper:
         t = float(max((tr.t[-1] for tr in snapshot.trajectories.values() if len(tr.t)), default=0))
         frame, labels = self.options.map_frame, self.options.marker_labels
         for topic, msgtype, data in map_messages(snapshot, self.make, t, frame, labels):
-            self.node.publisher(topic, msgtype).put(data)
+            self.node.publisher(topic, msgtype, block=False).put(data)
         done = time.perf_counter()
         self.last_publication = done
         self.stats.latencies_s.extend(done - came for came in self.unpublished)
@@ -249,7 +257,7 @@ class LiveMapper:
         """The node's counts as JSON on the status topic (what a replay paces itself by)."""
         text = json.dumps({**self.stats.as_dict(), "queue_size": self.live.queue_size})
         msg = self.make.T[STRING](data=text)
-        self.node.publisher(STATUS_TOPIC, STRING).put(self.make.serialize(msg, STRING))
+        self.node.publisher(STATUS_TOPIC, STRING, block=False).put(self.make.serialize(msg, STRING))
         self.last_status = time.perf_counter()
 
 

@@ -59,7 +59,9 @@ class TopicPublisher:
     """One topic's publisher: each put carries the payload and, on ROS's scheme, the
     attachment with the next sequence number and the publisher's GID."""
 
-    def __init__(self, node: LiveNode, topic: str, msgtype: str, entity_id: int) -> None:
+    def __init__(
+        self, node: LiveNode, topic: str, msgtype: str, entity_id: int, block: bool = True
+    ) -> None:
         self.node, self.topic, self.msgtype = node, topic, msgtype
         self.gid = os.urandom(16)
         self.sequence = itertools.count(1)
@@ -68,7 +70,9 @@ class TopicPublisher:
         self.publisher = node.session.declare_publisher(
             self.key,
             encoding=zenoh.Encoding(f"{PLAIN_ENCODING};{msgtype}"),
-            congestion_control=zenoh.CongestionControl.BLOCK,
+            congestion_control=zenoh.CongestionControl.BLOCK
+            if block
+            else zenoh.CongestionControl.DROP,
             reliability=zenoh.Reliability.RELIABLE,
         )
         self.token = node.token_of(entity_id, "MP", topic, msgtype, hashed)
@@ -123,12 +127,14 @@ class LiveNode:
         self.tokens.append(token)
         return token
 
-    def publisher(self, topic: str, msgtype: str) -> TopicPublisher:
-        """The publisher of `topic` (made on first use)."""
+    def publisher(self, topic: str, msgtype: str, block: bool = True) -> TopicPublisher:
+        """The publisher of `topic` (made on first use). `block`: a put waits while the
+        network is congested (a replay, whose every message counts), else it is dropped (a
+        map that the next one replaces: a slow subscriber never holds up the mapper)."""
         with self.lock:
             pub = self.publishers.get(topic)
             if pub is None:
-                pub = TopicPublisher(self, topic, msgtype, next(self.entities))
+                pub = TopicPublisher(self, topic, msgtype, next(self.entities), block)
                 self.publishers[topic] = pub
             elif pub.msgtype != msgtype:
                 raise ValueError(f"{topic} carries {pub.msgtype}, not {msgtype}")

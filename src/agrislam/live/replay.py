@@ -14,8 +14,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from rosbags.highlevel import AnyReader
-
 from agrislam.config import AgrislamConfig
 from agrislam.io.ros.messages import STRING, MessageFactory
 from agrislam.io.sinks.rosbag import survey_messages

@@ -123,7 +123,7 @@ class NodeName:
 def endpoint_of_token(token: str) -> dict[str, str] | None:
     """The parts of a publisher's or subscriber's liveliness token (None for other tokens)."""
     parts = token.split("/")
-    if len(parts) != 14 or parts[0] != ADMIN_SPACE or parts[5] not in ("MP", "MS"):
+    if len(parts) != 13 or parts[0] != ADMIN_SPACE or parts[5] not in ("MP", "MS"):
         return None
     return {
         "kind": parts[5],
