@@ -6,8 +6,8 @@ soon as a frame is mapped) and its status.
 
 When the mapper falls behind, the queue does not grow: past `live.queue_size` detection
 frames (and images) waiting, the oldest is dropped and counted; odometry, GNSS, tf and meta,
-small and what every later frame builds on, wait up to `ESSENTIAL_FACTOR` times that. Messages are taken in arrival order, never held for
-a robot that went silent."""
+small and what every later frame builds on, wait up to `ESSENTIAL_FACTOR` times that.
+Messages are taken in arrival order, never held for a robot that went silent."""
 
 from __future__ import annotations
 
