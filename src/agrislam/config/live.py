@@ -18,10 +18,10 @@ class LiveSection(_Strict):
         20.0, gt=0.0, description="Hz, at most: the map, paths and interest grid go out"
     )
     queue_size: int = Field(
-        256,
+        32,
         ge=1,
-        description="messages waiting for the mapper at most; past it the oldest detection "
-        "frames are dropped (and counted) rather than memory grown",
+        description="detection frames waiting for the mapper at most (the lag it may run "
+        "behind: 32 frames at 10 Hz is 3.2 s); past it the oldest is dropped and counted",
     )
     domain_id: int = Field(0, ge=0, le=232, description="ROS_DOMAIN_ID of the graph")
     namespaces: Literal["ros", "plain"] = Field(

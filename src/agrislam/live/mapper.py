@@ -1,8 +1,8 @@
 """The live map: samples from the node go to the recording at once and into a bounded
 queue; the mapper takes them in the order they came, decodes them into records and runs
 the offline pipeline (`run_survey`) on that stream, so the outputs at the end are those of
-`agrislam run`. Between records it publishes the map (at most `live.publish_rate` Hz, as
-soon as a frame is mapped) and its status.
+`agrislam run`. Between records it publishes the map (as soon as a frame is mapped, at most
+`live.publish_rate` Hz and at most a third of the time) and its status.
 
 When the mapper falls behind, the queue does not grow: past `live.queue_size` detection
 frames (and images) waiting, the oldest is dropped and counted; odometry, GNSS, tf and meta,
@@ -50,7 +50,10 @@ STATUS_TOPIC = "/agrislam/status"
 RECORDING = "live.mcap"
 LATENCIES_KEPT = 100_000
 ESSENTIAL_FACTOR = 64  # odometry, GNSS, tf, meta queued at most this many times queue_size
-STATUS_PERIOD_S = 0.02  # the status goes out at most this often while messages come
+STATUS_PERIOD_S = 0.02
+# a publication waits at least this many times what the last one took, so that a large
+# map's publishing (its snapshot and markers) keeps to a third of the mapper's time
+PUBLISHING_SHARE = 3.0  # the status goes out at most this often while messages come
 
 
 @dataclass
@@ -122,6 +125,7 @@ class LiveMapper:
         self.ready = threading.Condition()
         self.stopping = threading.Event()
         self.period = 1.0 / self.live.publish_rate
+        self.gap = self.period  # to the next publication: longer when publishing costs more
         self.last_publication = -float("inf")
         self.waiting: dict[tuple[str, float], float] = {}  # frame -> when it came
         self.unpublished: list[float] = []  # when each frame mapped since came
@@ -210,7 +214,7 @@ class LiveMapper:
     def _next(self) -> tuple[Received, float] | None:
         with self.ready:
             if not self.queue and not self.stopping.is_set():
-                due = self.last_publication + self.period - time.perf_counter()
+                due = self.last_publication + self.gap - time.perf_counter()
                 self.ready.wait(max(due, 0.0) if self.unpublished else 0.2)
             if not self.queue:
                 return None
@@ -234,13 +238,14 @@ class LiveMapper:
     # ----------------------------------------------------------------- output
 
     def _publish_if_due(self) -> None:
-        if self.unpublished and time.perf_counter() >= self.last_publication + self.period:
+        if self.unpublished and time.perf_counter() >= self.last_publication + self.gap:
             self._publish()
 
     def _publish(self) -> None:
         """The map, paths and interest grid as they are now, then the status."""
         if self.stats.frames_mapped == 0:
             return
+        start = time.perf_counter()
         snapshot = self.world.snapshot()
         t = float(max((tr.t[-1] for tr in snapshot.trajectories.values() if len(tr.t)), default=0))
         frame, labels = self.options.map_frame, self.options.marker_labels
@@ -248,6 +253,7 @@ class LiveMapper:
             self.node.publisher(topic, msgtype, block=False).put(data)
         done = time.perf_counter()
         self.last_publication = done
+        self.gap = max(self.period, PUBLISHING_SHARE * (done - start))
         self.stats.latencies_s.extend(done - came for came in self.unpublished)
         self.unpublished.clear()
         self.stats.publications += 1
