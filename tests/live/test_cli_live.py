@@ -28,6 +28,7 @@ def test_live_stops_on_sigint_with_the_outputs_of_run_and_its_recording_maps_ali
         env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
     )  # fmt: skip
     try:
+        assert "mapping live" in live.stdout.readline()  # it listens now
         replayed = runner.invoke(
             app, ["replay", "sim:?plants=30&seed=5", "--rate", "0", "--connect", endpoint]
         )
@@ -38,6 +39,7 @@ def test_live_stops_on_sigint_with_the_outputs_of_run_and_its_recording_maps_ali
         output, _ = live.communicate(timeout=120)
     finally:
         live.kill()
+        live.communicate()
     assert live.returncode == 0, output
     for name in ("live.mcap", "objects.csv", "map.mcap", "metrics.json", "report.png"):
         assert (out / name).exists(), name
