@@ -485,6 +485,93 @@ def _fail(message: str, code: int) -> NoReturn:
     raise typer.Exit(code)
 
 
+ListenOption = Annotated[
+    str | None, typer.Option("--listen", help="Zenoh endpoint to listen on as a peer.")
+]
+ConnectOption = Annotated[
+    str | None,
+    typer.Option("--connect", help="Zenoh endpoint to join (rmw_zenoh: tcp/localhost:7447)."),
+]
+
+
+def _config_sections(config: Path | None) -> tuple[AgrislamConfig, dict[str, Any]]:
+    """The config file's model and its source sections (``bag:``, ``sim:``)."""
+    data = load_mapping(config) if config else {}
+    sections = {name: data.pop(name, None) for name in SOURCE_SECTIONS}
+    return _validated(AgrislamConfig, data, config), sections
+
+
+@app.command()
+def live(
+    config: ConfigOption = None,
+    out: OutOption = Path("runs/live"),
+    listen: ListenOption = None,
+    connect: ConnectOption = None,
+    force: ForceOption = False,
+) -> None:
+    """Map the robots live over Zenoh (as a ROS 2 node on rmw_zenoh), publishing the map;
+    every message goes to OUT/live.mcap. Ctrl-C or SIGTERM writes the outputs of `run`."""
+    from agrislam.io.sources.bag_config import BagSourceConfig
+    from agrislam.live.mapper import LiveMapper, run_live
+
+    def on_start(mapper: LiveMapper) -> None:
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(sig, lambda *_: mapper.stop())
+        console.print(f"mapping live (Ctrl-C to stop and write the outputs to {out})")
+
+    with _user_errors():
+        cfg, sections = _config_sections(config)
+        bag = BagSourceConfig.model_validate(sections["bag"] or {})
+        with RunFolder(out, force=force) as folder:
+            try:
+                result, stats = run_live(cfg, folder, listen, connect, on_start, bag)
+            except RunError as err:
+                _stopped(err, out, strict=False)
+    console.print_json(json.dumps(stats.as_dict()))
+    _summary(result, out)
+
+
+@app.command()
+def replay(
+    source: Annotated[str, typer.Argument(metavar="LOG_OR_BAG", help="A survey to publish.")],
+    rate: Annotated[
+        float, typer.Option(help="Times real time; 0: as fast as the live node takes it.")
+    ] = 1.0,
+    config: ConfigOption = None,
+    listen: ListenOption = None,
+    connect: ConnectOption = None,
+) -> None:
+    """Publish a recorded survey on the robots' topics, for `agrislam live` to map."""
+    from agrislam.live.node import LiveNode
+    from agrislam.live.replay import recorded_messages
+    from agrislam.live.replay import replay as publish
+
+    with _user_errors():
+        cfg, sections = _config_sections(config)
+        node = LiveNode.open(
+            _message_store(),
+            listen,
+            connect,
+            name=f"{cfg.advanced.live.node_name}_replay",
+            domain=cfg.live.domain_id,
+            scheme=cfg.live.namespaces,
+        )
+        try:
+            messages = recorded_messages(source, cfg, sections)
+            done = publish(node, messages, rate, cfg.advanced.live.replay_wait_s)
+        finally:
+            node.close()
+    console.print(f"published {done.published} messages in {done.seconds:.1f} s")
+    for msgtype, count in done.skipped.items():
+        console.print(f"[yellow]{count} x {msgtype} not published: no definition of it[/]")
+
+
+def _message_store() -> Any:
+    from agrislam.io.ros.messages import typestore
+
+    return typestore("humble")
+
+
 @app.command("config")
 def config_cmd(
     defaults: Annotated[

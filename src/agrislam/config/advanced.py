@@ -11,6 +11,7 @@ from pydantic import Field, PositiveFloat, model_validator
 
 from agrislam.config.gnss import AdvancedGnss
 from agrislam.config.limits import InputLimits, StrictModel
+from agrislam.config.live import AdvancedLive
 from agrislam.config.season import SeasonConfig
 
 # association keys renamed since 0.1: old -> new (read with a FutureWarning)
@@ -303,3 +304,4 @@ class AdvancedConfig(StrictModel):
     maintenance: AdvancedMaintenance = Field(default_factory=AdvancedMaintenance)
     gnss: AdvancedGnss = Field(default_factory=AdvancedGnss)
     season: SeasonConfig = Field(default_factory=SeasonConfig)
+    live: AdvancedLive = Field(default_factory=AdvancedLive)

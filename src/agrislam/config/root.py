@@ -12,6 +12,7 @@ from agrislam.config.advanced import AdvancedConfig
 from agrislam.config.gnss import GnssSection
 from agrislam.config.legacy import moved_to_advanced
 from agrislam.config.limits import StrictModel
+from agrislam.config.live import LiveSection
 from agrislam.config.loading import load_mapping
 from agrislam.config.schema import FieldSchema
 from agrislam.config.sections import (
@@ -45,6 +46,7 @@ class AgrislamConfig(StrictModel):
     gnss: GnssSection = Field(default_factory=GnssSection)
     outputs: OutputsConfig = Field(default_factory=OutputsConfig)
     checkpoint: CheckpointConfig = Field(default_factory=CheckpointConfig)
+    live: LiveSection = Field(default_factory=LiveSection)
     advanced: AdvancedConfig = Field(default_factory=AdvancedConfig)
 
     model_config = ConfigDict(

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import json
 import math
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import Any, Literal
 
@@ -174,3 +174,27 @@ def write_survey_bag(
         for rec in records:
             out.write(rec)
         return out.count
+
+
+class _Collected:
+    """A bag writer's interface that keeps the messages instead of writing them."""
+
+    def __init__(self) -> None:
+        self.messages: list[tuple[str, str, int, bytes]] = []
+
+    def add_connection(self, topic: str, msgtype: str, **_: Any) -> tuple[str, str]:
+        return topic, msgtype
+
+    def write(self, conn: tuple[str, str], ns: int, data: bytes) -> None:
+        self.messages.append((*conn, ns, bytes(data)))
+
+
+def survey_messages(records: Iterable[Record]) -> Iterator[tuple[str, str, int, bytes]]:
+    """The messages `write_survey_bag` writes, one record at a time, as (topic, type, log
+    time in ns, CDR): a survey published live as it would be recorded."""
+    kept = _Collected()
+    out = _SurveyBagWriter(kept, MessageFactory("humble"))
+    for rec in records:
+        out.write(rec)
+        yield from kept.messages
+        kept.messages.clear()

@@ -50,6 +50,7 @@ OUTPUT_NAMES = (
     "changes.csv",  # a survey that continued a saved map
     "season.png",
     "metrics.json",
+    "live.mcap",  # what `agrislam live` received
 )
 
 
