@@ -113,14 +113,12 @@ class SpatialIndex:
         misses one within `radius`, may include one up to `margin` farther (its estimate
         may have moved that much since it was last read)."""
         found: list[np.ndarray] = []
+        centres = centres[np.isfinite(centres).all(axis=1)]
         if self._tiles and len(centres):
             reach = radius + self.margin
-            lo = _tile_of(centres.min(axis=0)[None] - reach)[0]
-            hi = _tile_of(centres.max(axis=0)[None] + reach)[0]
-            for ix in range(int(lo[0]), int(hi[0]) + 1):
-                for iy in range(int(lo[1]), int(hi[1]) + 1):
-                    if (tile := self._tiles.get((ix, iy))) is not None:
-                        found.append(_within(tile, centres, reach))
+            for key in self._tiles_near(centres, reach).tolist():
+                if (tile := self._tiles.get(tuple(key))) is not None:
+                    found.append(_within(tile, centres, reach))
         if self._fresh and len(centres):
             fresh_ids = np.fromiter(self._fresh.keys(), dtype=int, count=len(self._fresh))
             fresh_xy = np.stack(list(self._fresh.values()))
@@ -132,6 +130,23 @@ class SpatialIndex:
         # as last known (NaN: forgotten), not as a tile not yet built again holds them
         d2 = ((self._xy[ids, None, :] - centres[None, :, :]) ** 2).sum(-1).min(axis=1)
         return ids[d2 <= (radius + self.margin) ** 2]
+
+    def _tiles_near(self, centres: np.ndarray, reach: float) -> np.ndarray:
+        """(k, 2) the tiles within `reach` of any of `centres` that may hold objects: those
+        around each centre, or, where these outnumber the built tiles, the built tiles near
+        one. Never the tiles between far-apart centres: a frame with one detection far off
+        costs what a frame of near ones costs."""
+        lo, hi = _tile_of(centres - reach), _tile_of(centres + reach)
+        span = hi - lo + 1  # tiles per axis around each centre
+        if int(np.prod(span, axis=1).sum()) > len(self._tiles):
+            built = np.array(list(self._tiles), dtype=np.int64).reshape(-1, 2)
+            near = (built[:, None, :] >= lo[None]) & (built[:, None, :] <= hi[None])
+            return built[near.all(axis=2).any(axis=1)]
+        ox, oy = np.meshgrid(*(np.arange(n) for n in span.max(axis=0)), indexing="ij")
+        around = lo[:, None, :] + np.column_stack([ox.ravel(), oy.ravel()])[None]
+        around = around[(around <= hi[:, None, :]).all(axis=2)]
+        _, first = np.unique(_packed(around), return_index=True)
+        return around[first]
 
 
 def _within(tile: tuple[cKDTree, np.ndarray], centres: np.ndarray, reach: float) -> np.ndarray:
