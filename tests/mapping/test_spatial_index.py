@@ -61,7 +61,8 @@ def test_spatial_index_never_misses_an_object_as_the_map_moves_and_is_rebuilt():
         if step % 7 == 0:
             index.rebuild()
         centres = rng.uniform(-3 * TILE, 5 * TILE, size=(1, 2)) + rng.normal(0, 1.0, (5, 2))
-        radius = rng.uniform(0.2, 4.0)
+        radius = rng.uniform(0.2, 4.0) if step % 3 else rng.uniform(4.0, 3 * TILE)  # wide: read
+        # from the built tiles rather than around each centre
         got = set(index.query(centres, radius).tolist())
         live = np.flatnonzero(alive)
         within = {int(live[i]) for i in brute_force(truth[live], centres, radius)}
@@ -111,3 +112,21 @@ def test_a_far_centre_costs_what_a_near_one_costs():
         assert index.query(np.vstack([near, [far]]), 1.0).tolist() == expected
         assert tiles.lookups <= alone + 4, far  # the far centre's own tiles, at most 2 x 2
         tiles.lookups = 0
+
+
+def test_an_object_that_creeps_into_the_next_tile_stays_found():
+    """A move of a few centimetres across a tile border, then a build of the old tile for
+    another object: the object is in the new tile's tree, not in neither."""
+    index = SpatialIndex(margin=0.3)
+    index.rebuild(np.array([0, 1]), np.array([[TILE + 0.02, 1.0], [TILE + 3.0, 1.0]]))
+    index.settle(np.array([0]), np.array([[TILE - 0.02, 1.0]]))  # into tile (0, 0)
+    index.settle(np.array([1]), np.array([[TILE + 5.0, 1.0]]))  # tile (1, 0) built again
+    index.rebuild()
+    assert index.query(np.array([[TILE - 0.5, 1.0]]), 0.5).tolist() == [0]
+
+
+def test_a_moved_object_is_found_where_it_was_read_last():
+    index = SpatialIndex(margin=0.0)
+    index.move(np.array([0]), np.array([[0.0, 0.0]]))
+    index.settle(np.array([0]), np.array([[0.1, 0.0]]))  # read again before the next build
+    assert index.query(np.array([[0.6, 0.0]]), 0.5).tolist() == [0]
