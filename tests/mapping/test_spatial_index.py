@@ -1,6 +1,8 @@
 """The map's spatial index (mapping/spatial_index.py): never misses an object within the radius,
 builds again only the tiles that changed, looks only at the tiles around what it is asked."""
 
+import warnings
+
 import numpy as np
 
 from agrislam.mapping.spatial_index import TILE, SpatialIndex
@@ -130,3 +132,15 @@ def test_a_moved_object_is_found_where_it_was_read_last():
     index.move(np.array([0]), np.array([[0.0, 0.0]]))
     index.settle(np.array([0]), np.array([[0.1, 0.0]]))  # read again before the next build
     assert index.query(np.array([[0.6, 0.0]]), 0.5).tolist() == [0]
+
+
+def test_an_object_at_no_finite_place_is_in_no_tile():
+    """A diverged solve's infinite position: not indexed, no tile of it, no warning."""
+    index = SpatialIndex(margin=0.3)
+    xy = np.array([[0.5, 0.0], [1.0, np.inf], [np.nan, 2.0], [0.0, 0.5]])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        index.rebuild(np.arange(4), xy)
+        index.settle(np.array([0]), np.array([[-np.inf, 0.0]]))
+        index.rebuild()
+        assert index.query(np.array([[0.5, 0.0]]), 1.0).tolist() == [3]

@@ -47,7 +47,7 @@ class SpatialIndex:
         self._fresh.clear()
 
     def _build(self, tiles: set[tuple[int, int]]) -> None:
-        indexed = np.flatnonzero(~np.isnan(self._xy[:, 0]))
+        indexed = np.flatnonzero(np.isfinite(self._xy).all(axis=1))  # NaN: not indexed
         keys = _tile_of(self._xy[indexed])
         mine = np.isin(_packed(keys), _packed(np.array(sorted(tiles)).reshape(-1, 2)))
         members = indexed[mine]
@@ -161,8 +161,8 @@ def _tile_of(xy: np.ndarray) -> np.ndarray:
 
 
 def _tiles_under(xy: np.ndarray) -> set[tuple[int, int]]:
-    """The tiles points xy (k, 2) lie in (NaN rows: none)."""
-    tiles = _tile_of(xy[~np.isnan(xy[:, 0])])
+    """The tiles points xy (k, 2) lie in (rows not finite: none)."""
+    tiles = _tile_of(xy[np.isfinite(xy).all(axis=1)])
     _, first = np.unique(_packed(tiles), return_index=True)
     return set(map(tuple, tiles[first].tolist()))
 
