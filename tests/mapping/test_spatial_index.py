@@ -135,12 +135,14 @@ def test_a_moved_object_is_found_where_it_was_read_last():
 
 
 def test_an_object_at_no_finite_place_is_in_no_tile():
-    """A diverged solve's infinite position: not indexed, no tile of it, no warning."""
+    """A diverged solve's infinite position: not indexed, no tile of it, no warning; one
+    beyond what a tile number holds is in an edge tile."""
     index = SpatialIndex(margin=0.3)
-    xy = np.array([[0.5, 0.0], [1.0, np.inf], [np.nan, 2.0], [0.0, 0.5]])
+    xy = np.array([[0.5, 0.0], [1.0, np.inf], [np.nan, 2.0], [0.0, 0.5], [1e300, -1e300]])
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        index.rebuild(np.arange(4), xy)
+        index.rebuild(np.arange(5), xy)
         index.settle(np.array([0]), np.array([[-np.inf, 0.0]]))
         index.rebuild()
         assert index.query(np.array([[0.5, 0.0]]), 1.0).tolist() == [3]
+        assert index.query(np.array([[1e300, -1e300]]), 1.0).tolist() == [4]

@@ -12,6 +12,7 @@ from scipy.spatial import cKDTree
 from agrislam.growing import Doubling
 
 TILE = 8.0  # m, the side of a tile: a few hundred plants, a few in one camera view
+EDGE = 2**31 - 1  # tiles from the origin (17 million km): `_packed` tiles stay distinct
 
 
 class SpatialIndex:
@@ -156,8 +157,9 @@ def _within(tile: tuple[cKDTree, np.ndarray], centres: np.ndarray, reach: float)
 
 
 def _tile_of(xy: np.ndarray) -> np.ndarray:
-    """(k, 2) integer tile coordinates of points xy (k, 2)."""
-    return np.floor(xy / TILE).astype(np.int64)
+    """(k, 2) integer tile coordinates of finite points xy (k, 2); a diverged estimate
+    beyond EDGE tiles is in an edge tile."""
+    return np.clip(np.floor(xy / TILE), -EDGE, EDGE).astype(np.int64)
 
 
 def _tiles_under(xy: np.ndarray) -> set[tuple[int, int]]:
