@@ -32,7 +32,7 @@ class SpatialIndex:
         self._doubling = Doubling({"_xy": np.nan, "_built_xy": np.nan})
         self._tiles: dict[tuple[int, int], tuple[cKDTree, np.ndarray]] = {}  # tree, ids
         self._dirty: set[tuple[int, int]] = set()  # tiles to build again
-        self._fresh: set[int] = set()  # moved since the last build: read where they are now
+        self._fresh: dict[int, np.ndarray] = {}
 
     # ------------------------------------------------------------------ building
     def rebuild(self, ids: np.ndarray | None = None, xy: np.ndarray | None = None) -> None:
@@ -69,12 +69,12 @@ class SpatialIndex:
     def move(self, ids: np.ndarray, xy: np.ndarray) -> None:
         """Objects just added, or whose estimate was just refreshed: searched directly."""
         self.settle(ids, xy)
-        self._fresh.update(np.asarray(ids, dtype=int).tolist())
+        for i, p in zip(np.asarray(ids).tolist(), xy, strict=True):
+            self._fresh[i] = p
 
     def settle(self, ids: np.ndarray, xy: np.ndarray) -> None:
         """New positions of objects: the next build uses them; one that moved more than half
-        the margin since its tile was built, or into another tile, gets its tile (and the one
-        it is in now) built: a build of either alone would leave it in neither."""
+        the margin since its tile was built gets its tile (and the one it is in now) built."""
         ids = np.asarray(ids, dtype=int)
         if len(ids):
             self._doubling.reserve_attributes(self, int(ids.max()) + 1, len(self._xy))
@@ -82,8 +82,6 @@ class SpatialIndex:
         self._xy[ids] = xy
         built = self._built_xy[ids]
         moved = ~(np.sum((xy - built) ** 2, axis=1) <= (0.5 * self.margin) ** 2)  # NaN: new
-        near = ~moved
-        moved[near] = np.any(_tile_of(xy[near]) != _tile_of(built[near]), axis=1)
         if moved.any():
             self._dirty |= _tiles_under(np.concatenate([xy[moved], built[moved]]))
 
@@ -101,7 +99,8 @@ class SpatialIndex:
     def forget(self, ids: np.ndarray) -> None:
         ids = np.atleast_1d(ids)
         ids = ids[ids < len(self._xy)]
-        self._fresh.difference_update(ids.tolist())
+        for i in ids.tolist():
+            self._fresh.pop(i, None)
         self._dirty |= _tiles_under(self._built_xy[ids])
         self._xy[ids] = self._built_xy[ids] = np.nan
 
@@ -122,8 +121,9 @@ class SpatialIndex:
                 if (tile := self._tiles.get(tuple(key))) is not None:
                     found.append(_within(tile, centres, reach))
         if self._fresh and len(centres):
-            fresh_ids = np.fromiter(self._fresh, dtype=int, count=len(self._fresh))
-            d2 = ((self._xy[fresh_ids, None, :] - centres[None, :, :]) ** 2).sum(-1).min(axis=1)
+            fresh_ids = np.fromiter(self._fresh.keys(), dtype=int, count=len(self._fresh))
+            fresh_xy = np.stack(list(self._fresh.values()))
+            d2 = ((fresh_xy[:, None, :] - centres[None, :, :]) ** 2).sum(-1).min(axis=1)
             found.append(fresh_ids[d2 <= radius**2])
         if not found:
             return np.empty(0, dtype=int)
