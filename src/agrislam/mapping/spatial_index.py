@@ -12,6 +12,7 @@ from scipy.spatial import cKDTree
 from agrislam.growing import Doubling
 
 TILE = 8.0  # m, the side of a tile: a few hundred plants, a few in one camera view
+EDGE = 2**31 - 1  # tiles from the origin (17 million km): `_packed` tiles stay distinct
 
 
 class SpatialIndex:
@@ -47,7 +48,7 @@ class SpatialIndex:
         self._fresh.clear()
 
     def _build(self, tiles: set[tuple[int, int]]) -> None:
-        indexed = np.flatnonzero(~np.isnan(self._xy[:, 0]))
+        indexed = np.flatnonzero(np.isfinite(self._xy).all(axis=1))  # NaN: not indexed
         keys = _tile_of(self._xy[indexed])
         mine = np.isin(_packed(keys), _packed(np.array(sorted(tiles)).reshape(-1, 2)))
         members = indexed[mine]
@@ -113,14 +114,12 @@ class SpatialIndex:
         misses one within `radius`, may include one up to `margin` farther (its estimate
         may have moved that much since it was last read)."""
         found: list[np.ndarray] = []
+        centres = centres[np.isfinite(centres).all(axis=1)]
         if self._tiles and len(centres):
             reach = radius + self.margin
-            lo = _tile_of(centres.min(axis=0)[None] - reach)[0]
-            hi = _tile_of(centres.max(axis=0)[None] + reach)[0]
-            for ix in range(int(lo[0]), int(hi[0]) + 1):
-                for iy in range(int(lo[1]), int(hi[1]) + 1):
-                    if (tile := self._tiles.get((ix, iy))) is not None:
-                        found.append(_within(tile, centres, reach))
+            for key in self._tiles_near(centres, reach).tolist():
+                if (tile := self._tiles.get(tuple(key))) is not None:
+                    found.append(_within(tile, centres, reach))
         if self._fresh and len(centres):
             fresh_ids = np.fromiter(self._fresh.keys(), dtype=int, count=len(self._fresh))
             fresh_xy = np.stack(list(self._fresh.values()))
@@ -133,6 +132,23 @@ class SpatialIndex:
         d2 = ((self._xy[ids, None, :] - centres[None, :, :]) ** 2).sum(-1).min(axis=1)
         return ids[d2 <= (radius + self.margin) ** 2]
 
+    def _tiles_near(self, centres: np.ndarray, reach: float) -> np.ndarray:
+        """(k, 2) the tiles within `reach` of any of `centres` that may hold objects: those
+        around each centre, or, where these outnumber the built tiles, the built tiles near
+        one. Never the tiles between far-apart centres: a frame with one detection far off
+        costs what a frame of near ones costs."""
+        lo, hi = _tile_of(centres - reach), _tile_of(centres + reach)
+        span = hi - lo + 1  # tiles per axis around each centre
+        if int(np.prod(span, axis=1).sum()) > len(self._tiles):
+            built = np.array(list(self._tiles), dtype=np.int64).reshape(-1, 2)
+            near = (built[:, None, :] >= lo[None]) & (built[:, None, :] <= hi[None])
+            return built[near.all(axis=2).any(axis=1)]
+        ox, oy = np.meshgrid(*(np.arange(n) for n in span.max(axis=0)), indexing="ij")
+        around = lo[:, None, :] + np.column_stack([ox.ravel(), oy.ravel()])[None]
+        around = around[(around <= hi[:, None, :]).all(axis=2)]
+        _, first = np.unique(_packed(around), return_index=True)
+        return around[first]
+
 
 def _within(tile: tuple[cKDTree, np.ndarray], centres: np.ndarray, reach: float) -> np.ndarray:
     tree, ids = tile
@@ -141,13 +157,14 @@ def _within(tile: tuple[cKDTree, np.ndarray], centres: np.ndarray, reach: float)
 
 
 def _tile_of(xy: np.ndarray) -> np.ndarray:
-    """(k, 2) integer tile coordinates of points xy (k, 2)."""
-    return np.floor(xy / TILE).astype(np.int64)
+    """(k, 2) integer tile coordinates of finite points xy (k, 2); a diverged estimate
+    beyond EDGE tiles is in an edge tile."""
+    return np.clip(np.floor(xy / TILE), -EDGE, EDGE).astype(np.int64)
 
 
 def _tiles_under(xy: np.ndarray) -> set[tuple[int, int]]:
-    """The tiles points xy (k, 2) lie in (NaN rows: none)."""
-    tiles = _tile_of(xy[~np.isnan(xy[:, 0])])
+    """The tiles points xy (k, 2) lie in (rows not finite: none)."""
+    tiles = _tile_of(xy[np.isfinite(xy).all(axis=1)])
     _, first = np.unique(_packed(tiles), return_index=True)
     return set(map(tuple, tiles[first].tolist()))
 

@@ -61,6 +61,23 @@ def test_a_fold_retires_the_window_and_freezes_the_aged_keyframes():
     assert sorted(nodes.anchor_keyframes().tolist()) == [X2, X2]
 
 
+def test_an_idle_robot_gives_up_every_keyframe_and_its_newest_thaws_when_it_drives_again():
+    nodes = survey()
+    nodes.add_keyframe("r", X2)
+    aged = nodes.age(kept=1, per_fold=2, idle={"r"})
+    assert aged == {X0, X2} and nodes.keyframes("r") == [] and nodes.holding() == []
+    for key, x in ((X0, 0.0), (X2, 2.0)):
+        nodes.freeze(key, np.array([x, 0.0, 0.1]), np.diag([0.01, 0.04, 0.001]))
+    nodes.left(aged)
+    pose, prior = nodes.thaw(X2, "r")
+    assert nodes.state(X2) == LIVE and X2 in nodes.live() and nodes.is_kept(X2)
+    assert nodes.keyframes("r") == [X2] and nodes.holding() == ["r"]
+    assert X2 not in nodes.frozen and nodes.state(X0) == FROZEN
+    np.testing.assert_array_equal(pose, [2.0, 0.0, 0.1])
+    assert isinstance(prior, gtsam.PriorFactorPose2) and prior.keys() == [X2]
+    np.testing.assert_allclose(prior.noiseModel().covariance(), np.diag([0.01, 0.04, 0.001]))
+
+
 def test_a_retired_object_seen_again_comes_back_with_its_anchor_and_a_forgotten_node_is_gone():
     nodes = survey()
     nodes.retire_object(L0, X0, np.array([1.5, 1.0]))

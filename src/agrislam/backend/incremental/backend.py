@@ -23,7 +23,9 @@ Every node is in one state at a time (nodes.py holds them all):
 new: its value is the one it was added with. live: in iSAM2 (or entering with the pending
 update); keyframes and rows are kept live by every fold. retired: held relative to a
 keyframe; an object seen again comes back tied to it (on a frozen keyframe: a prior where
-it stands). frozen: an aged keyframe held where it stood, with what hangs on it.
+it stands). frozen: an aged keyframe held where it stood, with what hangs on it. With more
+robots than half of `slam.keyframes_kept`, an idle robot's keyframes all age; its newest
+thaws, live again and held by a prior where it stood, when the robot drives on.
 
 `refine()` solves the whole recorded graph and carries on from that solution (refine.py);
 queries.py answers positions and covariances, live.py keeps iSAM2 and what feeds it.
@@ -114,7 +116,13 @@ class IncrementalBackend(Folding, Refining, Queries, LiveGraph, BackendBase):
         self._increments[robot] = (np.asarray(delta, dtype=float), np.asarray(cov, dtype=float))
 
     def _enter(self, key: int) -> None:
-        """Bring a node into the iSAM2 graph: new, or retired and tied to its keyframe."""
+        """Bring a node into the iSAM2 graph: new, retired and tied to its keyframe, or the
+        frozen newest keyframe of an idle robot, held where it stood."""
+        if self._nodes.state(key) == FROZEN:
+            pose, prior = self._nodes.thaw(key, self.graph.robot_of(key))
+            self._pending.enter(key, pose)
+            self._pending.add(prior, Entry((key,)))
+            return
         held = self._nodes.enter(key)
         if held is None:
             return

@@ -7,8 +7,10 @@ from __future__ import annotations
 
 import functools
 from collections import Counter
+from collections.abc import Collection
 
 import gtsam
+import numpy as np
 
 from agrislam.backend.graph import POSE, SurveyGraph, key_kind
 from agrislam.backend.incremental.conditioning import (
@@ -53,10 +55,10 @@ class Folding:
         starts = {}  # robot -> the keyframe its window starts at
         for robot, chain in self.graph.robots.items():
             latest = chain.keys[-1]
-            if not self._nodes.is_kept(latest):
+            if not self._nodes.is_kept(latest) and self._nodes.state(latest) != FROZEN:
                 starts[robot] = self._nodes.keyframes(robot)[-1]
                 self._nodes.add_keyframe(robot, latest)
-        aged = self._aged_keyframes()
+        aged = self._aged_keyframes(starts)
         window = self._nodes.window(aged)
         if window:
             self._converge()
@@ -85,15 +87,32 @@ class Folding:
         self._window_start = self._step
         self.rolls += 1
 
-    def _aged_keyframes(self) -> set[int]:
+    def _aged_keyframes(self, drove: Collection[str]) -> set[int]:
         """Keyframes past each robot's newest share of `keyframes_kept`, at most
-        `keyframes_per_robot` (the first stays), no longer kept. Shared: a fold ties the
-        keyframes of robots that saw one landmark into one Bayes tree. Capped: a keyframe's
-        marginal read costs more the more keyframes a robot keeps."""
+        `keyframes_per_robot` (the first stays), no longer kept; and those of the idle
+        robots (`_idle`). Shared: a fold ties the keyframes of robots that saw one landmark
+        into one Bayes tree. Capped: a keyframe's marginal read costs more the more
+        keyframes a robot keeps."""
         if not (kept := self.slam.keyframes_kept):
             return set()
-        kept = max(min(kept // max(len(self.graph.robots), 1), self.slam.keyframes_per_robot), 1)
-        return self._nodes.age(kept, AGED_PER_FOLD)
+        holding = self._nodes.holding()
+        idle = self._idle(holding, drove, kept)
+        kept = max(min(kept // max(len(holding), 1), self.slam.keyframes_per_robot), 1)
+        return self._nodes.age(kept, AGED_PER_FOLD, idle)
+
+    def _idle(self, holding: list[str], drove: Collection[str], kept: int) -> set[str]:
+        """The robots that give up all their keyframes: each robot holds its first and its
+        newest at least, so with more robots than half of `kept` holding keyframes, those
+        that did not drive since the last fold, the longest idle first, as many as are too
+        many. One that drives again takes up its newest keyframe again (`_enter`): the
+        graph, and a step's cost, follow the robots that drive, not all that ever did."""
+        excess = len(holding) - kept // 2
+        if excess <= 0:
+            return set()
+        idle = [robot for robot in holding if robot not in drove]
+        last_drove = [self.graph.robot(robot).times[-1] for robot in idle]
+        order = np.argsort(np.nan_to_num(last_drove, nan=-np.inf), kind="stable")
+        return {idle[k] for k in order[:excess]}
 
     def _freeze(self, aged: set[int]) -> None:
         """Aged keyframes are held where they stand, with their marginal covariance: what
@@ -143,11 +162,13 @@ class Folding:
             pose, step = self._nodes.last_seen(key)
             step = self._step if step is None else step
             robot = self.graph.robot_of(pose) if pose else next(iter(self.graph.robots))
-            frames = self._nodes.keyframes(robot)
-            keyframe = frames[-2] if step < half and len(frames) > 1 else frames[-1]
-            if not point.exists(keyframe):
-                keyframe = frames[-1]
-            if not point.exists(keyframe):  # merged while retired: back on its anchors alone
+            frames = self._nodes.keyframes(robot)  # none: an idle robot gave them up
+            newest = frames[-1] if frames else None
+            keyframe = frames[-2] if step < half and len(frames) > 1 else newest
+            if keyframe is None or not point.exists(keyframe):
+                keyframe = newest
+            # merged while retired (back on its anchors alone), or seen last by an idle robot
+            if keyframe is None or not point.exists(keyframe):
                 keyframe = self._reached(key, graph, point, window)
             anchored.setdefault(keyframe, []).append(key)
         for robot, keys in driven.items():

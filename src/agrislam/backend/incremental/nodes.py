@@ -4,7 +4,8 @@ its value there (backend/incremental/backend.py draws the life cycle).
 - NEW: added, no factor has used it yet; its value is the one it was added with.
 - LIVE: in iSAM2, or entering it with the pending update; iSAM2 holds its value.
 - RETIRED: folded out of iSAM2, held relative to a keyframe (retired.py's arrays).
-- FROZEN: a keyframe aged out of iSAM2, held where it stood with its covariance.
+- FROZEN: a keyframe aged out of iSAM2, held where it stood with its covariance; the
+  newest keyframe of an idle robot that drives again thaws, live again.
 
 Keyframes and rows carry a flag, *kept*: a fold leaves them live. The table changes a
 node's state only in its transitions below.
@@ -12,7 +13,7 @@ node's state only in its transitions below.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Collection
 
 import gtsam
 import numpy as np
@@ -84,6 +85,10 @@ class NodeTable:
         """The robot's kept keyframes, oldest first (read only)."""
         return self._keyframes[robot]
 
+    def holding(self) -> list[str]:
+        """The robots that hold keyframes (an idle one gives them all up, `age`)."""
+        return [robot for robot, frames in self._keyframes.items() if frames]
+
     def newest_keyframes(self, count: int) -> set[int]:
         """Each robot's `count` newest keyframes."""
         return {k for frames in self._keyframes.values() for k in frames[-count:]}
@@ -135,13 +140,17 @@ class NodeTable:
         self._live.add(key)
         return held
 
-    def age(self, kept: int, per_fold: int) -> set[int]:
+    def age(self, kept: int, per_fold: int, idle: Collection[str] = ()) -> set[int]:
         """Each robot's keyframes past its newest `kept`, at most `per_fold` of them (the
-        first keyframe stays): no longer kept, nor listed. Returns them."""
+        first keyframe stays); an `idle` robot's oldest `per_fold`, the first and the newest
+        in their turn: no longer kept, nor listed. Returns them."""
         aged: set[int] = set()
         for robot, frames in self._keyframes.items():
-            old = frames[1:-kept][:per_fold] if len(frames) > kept + 1 else []
-            self._keyframes[robot] = frames[:1] + frames[len(old) + 1 :]
+            if robot in idle:
+                old, self._keyframes[robot] = frames[:per_fold], frames[per_fold:]
+            else:
+                old = frames[1:-kept][:per_fold] if len(frames) > kept + 1 else []
+                self._keyframes[robot] = frames[:1] + frames[len(old) + 1 :]
             aged.update(old)
         self._kept -= aged
         return aged
@@ -155,6 +164,16 @@ class NodeTable:
         follows)."""
         self.frozen.freeze(key, pose, cov)
         self._state[key] = _CODE[FROZEN]
+
+    def thaw(self, key: int, robot: str) -> tuple[np.ndarray, gtsam.NonlinearFactor]:
+        """Frozen keyframe `key`, the newest of an idle robot that drives again, is live and
+        kept again, its robot's keyframe. Returns its pose and the prior that holds it where
+        it stood (what hangs on it follows it from now on)."""
+        pose, prior = self.frozen.thaw(key)
+        self._state[key] = _CODE[LIVE]
+        self._live.add(key)
+        self.add_keyframe(robot, key)
+        return pose, prior
 
     def retire_object(self, key: int, keyframe: int, z: np.ndarray) -> None:
         """Object `key` of the window is held at `z` in `keyframe`'s frame (its covariance

@@ -78,6 +78,12 @@ class FrozenKeyframes:
         held = self._held.get(key)
         return None if held is None else held[1]
 
+    def thaw(self, key: int) -> tuple[np.ndarray, gtsam.NonlinearFactor]:
+        """Keyframe `key` no longer frozen: its pose, and a prior there as uncertain as it
+        was held."""
+        pose, cov = self._held.pop(key)
+        return pose, gtsam.PriorFactorPose2(key, gtsam.Pose2(*pose), gaussian(cov))
+
     def moved_to(self, solution: gtsam.Values) -> None:
         """Every frozen keyframe at its pose in `solution` (a refine of the whole record)."""
         for key, (_, cov) in self._held.items():
