@@ -79,7 +79,6 @@ class FirstFrames:
         keep = (times >= since) & (times <= until)
         xy = np.array(self.xy).reshape(-1, 2)[keep]
         local, counts, label = cluster(xy, cfg.cluster_radius)
-        relocaliser.compatible = None
         if check is not None and self.dists:
             means = {
                 name: _cluster_mean(np.array(d)[keep], label, len(local))
@@ -88,7 +87,10 @@ class FirstFrames:
             relocaliser.compatible = lambda rows, j: check(
                 {name: m[rows] for name, m in means.items()}, j
             )
-        return relocaliser.locate(local, counts, detection_spread(xy, local, counts, label))
+        try:
+            return relocaliser.locate(local, counts, detection_spread(xy, local, counts, label))
+        finally:
+            relocaliser.compatible = None  # the check reads this try's frames only
 
     def localised(self, fix: Fix, t: float) -> None:
         """Take `fix`, found at t."""

@@ -1,0 +1,91 @@
+"""Starting without a meta, or with a wrong one: a robot the meta gives no start pose is
+placed where its first detections fit the map being built (season/newcomers.py), and until
+then none of its detections starts an object; a log without a meta has its first robot's
+first pose for origin, the map scored aligned to the truth."""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+import numpy as np
+import pytest
+
+from agrislam.config import AgrislamConfig
+from agrislam.records import Detections, GnssFix, Odometry, Record, TruthPose
+from agrislam.run.pipeline import RunResult, run_survey
+from agrislam.sim.config import SimConfig
+from agrislam.sim.simulator import Simulator
+from agrislam.world import WorldModel
+
+ROBOTS = {"path": {"n_robots": 2}, "seed": 3}
+
+
+def _survey(field: dict[str, Any]) -> list[Record]:
+    cfg = SimConfig.model_validate({**ROBOTS, "field": field})
+    return list(Simulator(cfg).records())
+
+
+@pytest.fixture(scope="module")
+def records() -> list[Record]:
+    """Two robots on a 40-plant field of 4 rows: r1 on the lanes of rows 0-2, r2 on rows
+    2-3; r1 maps the rows r2 starts beside, late in its survey."""
+    return _survey({"n_plants": 40, "n_rows": 4})
+
+
+def _map(records: list[Record], config: AgrislamConfig | None = None) -> RunResult:
+    return run_survey(records, WorldModel(config))
+
+
+@pytest.fixture(scope="module")
+def clean(records: list[Record]) -> RunResult:
+    return _map(records)
+
+
+def _renamed(records: list[Record], old: str, new: str) -> list[Record]:
+    """The records with robot `old` named `new` (its truth too, for scoring)."""
+    kinds = (Odometry, Detections, GnssFix, TruthPose)
+    return [
+        dataclasses.replace(r, robot=new) if isinstance(r, kinds) and r.robot == old else r
+        for r in records
+    ]
+
+
+def _mapped(result: RunResult) -> float:
+    assert result.metrics is not None
+    return result.metrics["objects"]["mapped_fraction"]
+
+
+def test_a_robot_not_in_the_meta_starts_where_its_first_detections_fit(records, clean):
+    result = _map(_renamed(records, "r2", "r9"))
+    assert _mapped(result) >= 0.95 * _mapped(clean)
+    assert (
+        result.issues["robot 'r9' has no start pose: placed where its first detections fit the map"]
+        == 1
+    )
+    assert not any("weak prior" in issue for issue in result.issues)
+    assert result.n_frames == clean.n_frames  # every frame of r9 mapped once it was placed
+    r9 = result.snapshot.trajectories["r9"]
+    truth = next(r.pose for r in records if isinstance(r, TruthPose) and r.robot == "r2")
+    assert np.linalg.norm(r9.poses[0, :2] - truth[:2]) < 0.1
+
+
+def test_a_robot_whose_detections_fit_nowhere_is_reported_and_maps_nothing(records):
+    """r9 sees a field of its own (its detections mirrored): never placed, none of its
+    detections starts an object, at the origin or anywhere; its frames are counted."""
+
+    def mirrored(r: Record) -> Record:
+        if not (isinstance(r, Detections) and r.robot == "r9"):
+            return r
+        flipped = [dataclasses.replace(d, xy=d.xy * np.array([1.0, -1.0])) for d in r.objects]
+        return dataclasses.replace(r, objects=tuple(flipped))
+
+    renamed = _renamed(records, "r2", "r9")
+    result = _map([mirrored(r) for r in renamed])
+    alone = _map([r for r in renamed if getattr(r, "robot", None) != "r9"])
+    np.testing.assert_allclose(result.snapshot.objects.xy, alone.snapshot.objects.xy)
+    (issue,) = [i for i in result.issues if i.startswith("robot 'r9' has no start pose")]
+    assert "fit nowhere on the map" in issue
+    frames = sum(isinstance(r, Detections) and r.robot == "r9" for r in renamed)
+    assert result.issues[issue] == frames
+    assert "r9" not in result.snapshot.trajectories
