@@ -31,7 +31,8 @@ class Estimators:
         self.sensor = SensorCalibration(sensor.estimate_biases)
         self.spacing = PointSpacing(settings.association.d_inter)
         self.gnss = GnssFixes(settings.gnss)
-        self.rows = RowTracker(settings.rows) if settings.rows.enabled else None
+        rows = settings.rows
+        self.rows = RowTracker(rows, backend.issues) if rows.enabled else None
         self.depth_min_views = sensor.depth_bias_min_views if sensor.estimate_depth_bias else None
         self.map, self.backend = map_state, backend
 

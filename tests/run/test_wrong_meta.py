@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from agrislam.config import AgrislamConfig
-from agrislam.records import Detections, GnssFix, Odometry, Record, TruthPose
+from agrislam.records import Detections, FieldPrior, GnssFix, Meta, Odometry, Record, TruthPose
 from agrislam.run.pipeline import RunResult, run_survey
 from agrislam.sim.config import SimConfig
 from agrislam.sim.simulator import Simulator
@@ -89,3 +89,16 @@ def test_a_robot_whose_detections_fit_nowhere_is_reported_and_maps_nothing(recor
     frames = sum(isinstance(r, Detections) and r.robot == "r9" for r in renamed)
     assert result.issues[issue] == frames
     assert "r9" not in result.snapshot.trajectories
+
+
+def test_a_row_angle_the_plants_contradict_is_replaced_by_the_fitted_one(records, clean):
+    """The meta says the rows run at 90 deg; they run at 0: the plants' angle is fitted,
+    reported, and the map is as without the wrong angle."""
+    wrong = FieldPrior(row_spacing=1.0, min_plant_distance=0.4, row_angle_deg=90.0)
+    result = _map(
+        [dataclasses.replace(r, field=wrong) if isinstance(r, Meta) else r for r in records]
+    )
+    assert _mapped(result) >= 0.95 * _mapped(clean)
+    (issue,) = [i for i in result.issues if i.startswith("row angle 90 deg given")]
+    assert "the fitted angle used" in issue
+    assert abs(np.degrees(result.snapshot.rows.angle)) < 1.0
