@@ -152,9 +152,7 @@ def test_a_graph_with_gnss_fixes_round_trips_through_g2o(tmp_path) -> None:
     assert fix.keys == (back.robots["r1"].keys[1],)
 
 
-def gate_run(
-    fixes: list[tuple[float, float]], cfg: GnssConfig | None = None, start_known: bool = True
-) -> GnssFixes:
+def gate_run(fixes: list[tuple[float, float]], cfg: GnssConfig | None = None) -> GnssFixes:
     """A robot driving 1 m east a step on odometry that claims to be near perfect, one RTK
     fixed fix (x, y) a step, as the world feeds them: each fix waits for the next pose."""
     be = make_backend(SlamConfig(), RowsConfig())
@@ -166,7 +164,7 @@ def gate_run(
             be.add_odometry("r1", float(i), np.array([1.0, 0.0, 0.0]), tight)
         dr = be.current_pose("r1")
         gnss.receive(fix_at(frame, xy, t=float(i)), ANCHOR, dr)
-        gnss.attach(be, "r1", dr, be.current_pose_covariance("r1"), start_known)
+        gnss.attach(be, "r1", dr, be.current_pose_covariance("r1"))
         be.update()
     return gnss
 
@@ -194,15 +192,11 @@ def test_without_consistency_the_gate_waits_for_reacquire() -> None:
 
 
 def test_fixes_that_agree_on_a_place_farther_than_any_drift_are_refused() -> None:
-    """Fixes 30 m north of a robot its start pose holds, agreeing with each other, after 5 m
-    of driving: farther than it can have drifted (5 m + 10 % of 5 m); a robot that started
-    without a start pose is pulled where they agree."""
-    off = [(float(i), 30.0) for i in range(6)]
-    held = gate_run(off)
-    assert held.counts["used"] == 0
-    assert held.counts["rejected_beyond_drift"] == 4  # the 3rd agreeing one on
-    unknown = gate_run(off, start_known=False)
-    assert unknown.counts["used"] > 0 and unknown.counts["rejected_beyond_drift"] == 0
+    """Fixes 30 m north of a robot its start holds, agreeing with each other, after 5 m of
+    driving: farther than it can have drifted (5 m + 10 % of 5 m)."""
+    gnss = gate_run([(float(i), 30.0) for i in range(6)])
+    assert gnss.counts["used"] == 0
+    assert gnss.counts["rejected_beyond_drift"] == 4  # the 3rd agreeing one on
 
 
 def test_gnss_that_disagrees_with_everything_is_rejected_as_a_whole() -> None:

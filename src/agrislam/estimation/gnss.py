@@ -72,15 +72,13 @@ class PendingFix:
 class GateState:
     """A robot's gate: the fixes rejected in a row, the last of them and how many before it
     agreed with each other, and the drift the gate is widened by (module docstring); how
-    far it drove since its pose was last held (by its start pose or a fix taken; `held`
-    False: its start is not known, any place the fixes agree on may be it); its fixes taken
-    and refused, and whether its GNSS was rejected as a whole."""
+    far it drove since its pose was last held (by its start or a fix taken); its fixes
+    taken and refused, and whether its GNSS was rejected as a whole."""
 
     beyond: int = 0
     last: Innovation | None = None
     agreeing: int = 0
     drift: np.ndarray = field(default_factory=lambda: np.zeros((2, 2)))
-    held: bool = True
     driven: float = 0.0
     at: np.ndarray | None = None  # the dead-reckoned pose at the last pose node
     taken: int = 0
@@ -128,19 +126,13 @@ class GnssFixes:
         return anchor
 
     def attach(
-        self,
-        backend,
-        robot: str,
-        dead_reckoning: np.ndarray,
-        pose_cov: np.ndarray | None,
-        start_known: bool = True,
+        self, backend, robot: str, dead_reckoning: np.ndarray, pose_cov: np.ndarray | None
     ) -> None:
         """The robot's waiting fixes as factors on its latest pose node: the odometry since
         each fix moves its lever arm; a fix beyond the gate is rejected, unless it and the
-        ones before it show that the pose drifted, as far as it can have drifted
-        (`start_known` False: any offset, until a fix is taken). A robot whose fixes keep
-        being refused has its GNSS rejected as a whole, and said so in the issues."""
-        gate = self.gates.setdefault(robot, GateState(held=start_known))
+        ones before it show that the pose drifted, as far as it can have drifted. A robot
+        whose fixes keep being refused has its GNSS rejected as a whole, and said so."""
+        gate = self.gates.setdefault(robot, GateState())
         if gate.at is not None:
             gate.driven += float(np.linalg.norm(dead_reckoning[:2] - gate.at[:2]))
         gate.at = np.asarray(dead_reckoning, dtype=float).copy()
@@ -162,7 +154,7 @@ class GnssFixes:
             width = kernel_width(fix.cov, innovation_cov, self.cfg.robust_k)
             backend.add_gnss(robot, np.array([*fix.z, *lever, width, kernel]), fix.cov)
             self.counts["used"] += 1
-            gate.taken, gate.held, gate.driven = gate.taken + 1, True, 0.0
+            gate.taken, gate.driven = gate.taken + 1, 0.0
 
     def _refused(self, robot: str, gate: GateState) -> None:
         """One more fix refused: the robot's GNSS rejected as a whole once fixes are refused
@@ -208,7 +200,7 @@ class GnssFixes:
         if not drifted and gate.beyond <= self.cfg.gate_reacquire:
             return "rejected_gate"
         reach = self.cfg.drift_floor + self.cfg.drift_per_m * gate.driven
-        if gate.held and float(np.linalg.norm(new.residual)) > reach:
+        if float(np.linalg.norm(new.residual)) > reach:
             return "rejected_beyond_drift"  # farther than the pose can have drifted
         # the pose drifted: take the fix, and the next ones as far off as it was
         gate.drift = np.outer(new.residual, new.residual)

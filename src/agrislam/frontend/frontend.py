@@ -93,7 +93,7 @@ class FrontEnd:
             delta, parts = pending
             odometry = self.estimators.noise.scale.odometry(parts)
             self.backend.add_odometry(robot, t, delta, odometry)
-        gnss.attach(self.backend, robot, chain.pose, pose_cov, chain.start_pose is not None)
+        gnss.attach(self.backend, robot, chain.pose, pose_cov)
 
     def place(self, robot: str, detections: list[Detection]) -> PlacedDetections:
         """Detections into the map frame with their covariances (DESIGN step 3), after the
