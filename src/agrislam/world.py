@@ -16,7 +16,7 @@ from agrislam.config import AgrislamConfig, FieldSchema, Settings, effective
 from agrislam.maintenance.maintainer import MaintenanceResult
 from agrislam.mapping.objects import ObjectTable
 from agrislam.records import Anchor, Detections, FieldPrior, GnssFix, Meta, Odometry, Record
-from agrislam.season.newcomers import Newcomers, not_placed_issue, placed_issue
+from agrislam.season.newcomers import Held, Newcomers, not_placed_issue, placed_issue
 from agrislam.season.prior_map import PriorMap
 from agrislam.semantics.beliefs import BeliefTable
 from agrislam.semantics.heuristic import interest_surface
@@ -165,10 +165,28 @@ class WorldModel:
         for robot, start, held in self.newcomers.place(s.map, s.backend, season, t, last):
             self.issues[placed_issue(robot)] += 1
             s.frontend.use_starts({robot: start})
-            for record in held:
-                report = self._map_record(record)
-                if isinstance(record, Detections) and report is not None:
-                    self._late.append((record, report))
+            self._replay(held)
+
+    def _last_newcomers(self) -> None:
+        """The survey's end: the robots still waiting tried in the whole map; if no robot
+        drove, the first of them starts at the origin (the spec: it was the first robot
+        seen) and the others are tried in its map."""
+        if not any(c.started for c in self.stages.frontend.robots.values()):
+            robot, held = self.newcomers.first()
+            self.issues[
+                f"robot {robot!r} has no start pose, and no robot with one drove: "
+                "it starts at the origin"
+            ] += 1
+            self._replay(held)
+        t = float(self.objects.last_update.max(initial=0.0))
+        self._place_newcomers(t, last=True)
+
+    def _replay(self, held: list[Held]) -> None:
+        """Map the records held for a robot placed late, its steps kept."""
+        for record in held:
+            report = self._map_record(record)
+            if isinstance(record, Detections) and report is not None:
+                self._late.append((record, report))
 
     @property
     def frame_free(self) -> bool:
@@ -252,7 +270,7 @@ class WorldModel:
         folds history away, sec. 2.6), then the last maintenance (maintenance/)."""
         stages = self.stages
         if self.newcomers.waiting:
-            self._place_newcomers(float(self.objects.last_update.max(initial=0.0)), last=True)
+            self._last_newcomers()
         stages.backend.refine()
         robots = stages.frontend.robots
         for name, chain in robots.items():

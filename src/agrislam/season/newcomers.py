@@ -116,6 +116,11 @@ class Newcomers:
                 del self.waiting[name]
         return out
 
+    def first(self) -> tuple[str, list[Held]]:
+        """The robot that waited longest, taken out with its records."""
+        name = next(iter(self.waiting))
+        return name, self.waiting.pop(name).held
+
     def not_placed(self) -> dict[str, tuple[int, str]]:
         """Each robot still waiting: its frames held and why it was not placed."""
         return {

@@ -1,17 +1,23 @@
-"""Starting without a meta, or with a wrong one: a robot the meta gives no start pose is
-placed where its first detections fit the map being built (season/newcomers.py), and until
-then none of its detections starts an object; a log without a meta has its first robot's
-first pose for origin, the map scored aligned to the truth."""
+"""How a survey starts, when its log says it wrongly or not at all: a robot the meta gives no
+start pose is placed where its first detections fit the map being built (season/newcomers.py),
+and until then none of its detections starts an object; a log without a meta has its first
+robot's first pose for origin, the map scored aligned to the truth; a row angle the plants
+contradict gives way to theirs; detections read before their robot's first odometry do not
+make its odometry go back in time."""
 
 from __future__ import annotations
 
 import dataclasses
+import io
+import json
 from typing import Any
 
 import numpy as np
 import pytest
 
 from agrislam.config import AgrislamConfig
+from agrislam.io.sinks.jsonl import record_to_json
+from agrislam.io.sources.jsonl import read_log
 from agrislam.records import Detections, FieldPrior, GnssFix, Meta, Odometry, Record, TruthPose
 from agrislam.run.pipeline import RunResult, run_survey
 from agrislam.sim.config import SimConfig
@@ -102,3 +108,18 @@ def test_a_row_angle_the_plants_contradict_is_replaced_by_the_fitted_one(records
     (issue,) = [i for i in result.issues if i.startswith("row angle 90 deg given")]
     assert "the fitted angle used" in issue
     assert abs(np.degrees(result.snapshot.rows.angle)) < 1.0
+
+
+def test_detections_copied_before_the_first_odometry_cost_only_themselves(records, clean):
+    """Each robot's frames of its first 10 s copied to the top of the log: the copies are
+    skipped lines (`before_odometry`), the odometry after them is read, the map as clean."""
+    lines = [json.dumps(record_to_json(r)) for r in records]
+    first = next(i for i, r in enumerate(records) if isinstance(r, Odometry))
+    copies = [lines[i] for i, r in enumerate(records) if isinstance(r, Detections) and r.t <= 10.0]
+    data = "\n".join([*lines[:first], *copies, *lines[first:]]) + "\n"
+    reader = read_log(io.BytesIO(data.encode()), strict=False)
+    result = run_survey(reader, WorldModel())
+    late = sum(json.loads(c)["t"] > 0.0 for c in copies)  # stamped after the first odometry
+    assert dict(reader.report.skipped) == {"before_odometry": late}
+    assert _mapped(result) >= 0.95 * _mapped(clean)
+    assert result.records["Odometry"] == clean.records["Odometry"]
