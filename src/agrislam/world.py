@@ -16,6 +16,7 @@ from agrislam.config import AgrislamConfig, FieldSchema, Settings, effective
 from agrislam.maintenance.maintainer import MaintenanceResult
 from agrislam.mapping.objects import ObjectTable
 from agrislam.records import Anchor, Detections, FieldPrior, GnssFix, Meta, Odometry, Record
+from agrislam.season.field_learning import FieldLearning
 from agrislam.season.newcomers import Held, Newcomers, not_placed_issue, placed_issue
 from agrislam.season.prior_map import PriorMap
 from agrislam.semantics.beliefs import BeliefTable
@@ -81,6 +82,8 @@ class WorldModel:
         self._starts: dict = {}
         self._started = False  # a record other than a meta has been read
         self._meta = False  # a meta has been read
+        self._learning: FieldLearning | None = None  # records held while the field is learned
+        self._learned = False
         self.newcomers = Newcomers()  # robots without a start pose, until placed
         self._late: list[tuple[Detections, StepReport]] = []  # their frames, once placed
         self._timer = StageTimer(STAGES)
@@ -121,6 +124,9 @@ class WorldModel:
             self.configure(record)
             self._meta = True
             return None
+        if self._learns_field():
+            self._learn_field(record)
+            return None
         if not (self._started or self._meta):
             self.issues[NO_META] += 1
         self._started = True
@@ -132,6 +138,41 @@ class WorldModel:
         if report is not None and self.newcomers.waiting:
             self._place_newcomers(record.t)
         return report
+
+    def _learns_field(self) -> bool:
+        """Whether the record was held for learning the field: a survey without a field
+        prior holds its first records until its first plants say whether they stand in rows
+        (season/field_learning.py); then its stages are built for that, and they are mapped."""
+        if self._learning is None:
+            learned = self._learned or self._started or self.prior is not None
+            if learned or not self.settings.landmarks:
+                return False
+            self._learning = FieldLearning()
+        return True
+
+    def _learn_field(self, record: Record | None) -> None:
+        """Hold `record` while learning; once the field is decided (or at the survey's end,
+        `record` None), build the stages for it and map the records held."""
+        learning, rows = self._learning, self.settings.rows
+        assert learning is not None
+        if record is not None:
+            if not learning.hold(record, self.settings.season, rows.first_fit_ambiguity):
+                return
+        else:
+            learning.learn(self.settings.season, rows.first_fit_ambiguity)
+        self._learning, self._learned = None, True
+        prior = learning.prior
+        if prior is not None:
+            self.issues[
+                f"no field prior: the first plants stand in rows {prior.row_spacing:.2f} m apart, "
+                f"{prior.min_plant_distance:.2f} m apart in the rows; mapped as a crop field"
+            ] += 1
+            self._field = prior
+            self._build()
+        for held in learning.held:
+            report = self.process(held)
+            if isinstance(held, Detections) and report is not None:
+                self._late.append((held, report))
 
     def take_late_frames(self) -> list[tuple[Detections, StepReport]]:
         """The frames of robots placed late, with their steps, mapped since the last call."""
@@ -268,6 +309,8 @@ class WorldModel:
     def finish(self) -> MaintenanceResult:
         """End of the survey: solve the whole graph once more (the real-time estimate
         folds history away, sec. 2.6), then the last maintenance (maintenance/)."""
+        if self._learning is not None:  # the log ended before the field was decided
+            self._learn_field(None)
         stages = self.stages
         if self.newcomers.waiting:
             self._last_newcomers()

@@ -22,7 +22,7 @@ from agrislam.records import Detections, FieldPrior, GnssFix, Meta, Odometry, Re
 from agrislam.run.pipeline import RunResult, run_survey
 from agrislam.sim.config import SimConfig
 from agrislam.sim.simulator import Simulator
-from agrislam.world import WorldModel
+from agrislam.world import NO_META, WorldModel
 
 ROBOTS = {"path": {"n_robots": 2}, "seed": 3}
 
@@ -123,3 +123,17 @@ def test_detections_copied_before_the_first_odometry_cost_only_themselves(record
     assert dict(reader.report.skipped) == {"before_odometry": late}
     assert _mapped(result) >= 0.95 * _mapped(clean)
     assert result.records["Odometry"] == clean.records["Odometry"]
+
+
+def test_a_log_without_a_meta_is_mapped_in_its_first_robots_frame(records, clean):
+    """No meta: no schema, start poses or field prior. The first robot's first pose is the
+    map origin (the map is scored aligned), the first plants say the field is in rows, and
+    a later robot is placed where its detections fit, or reported."""
+    result = _map([r for r in records if not isinstance(r, Meta)])
+    assert _mapped(result) >= 0.95 * _mapped(clean)
+    assert result.metrics["alignment"]["applied"]
+    assert result.issues[NO_META] == 1
+    (rows,) = [i for i in result.issues if i.startswith("no field prior: the first plants stand")]
+    assert "rows 0.98 m apart" in rows
+    r2 = [i for i in result.issues if i.startswith("robot 'r2' has no start pose")]
+    assert len(r2) == 1 and not any("weak prior" in i for i in result.issues)

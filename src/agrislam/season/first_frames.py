@@ -75,10 +75,7 @@ class FirstFrames:
     ) -> Fix:
         """Register the detections of [since, until] (s) in the relocaliser's map; `check`
         tells which map plants their attributes allow (None: any)."""
-        times = np.asarray(self.t)
-        keep = (times >= since) & (times <= until)
-        xy = np.array(self.xy).reshape(-1, 2)[keep]
-        local, counts, label = cluster(xy, cfg.cluster_radius)
+        keep, xy, (local, counts, label) = self.plants(cfg, since, until)
         if check is not None and self.dists:
             means = {
                 name: _cluster_mean(np.array(d)[keep], label, len(local))
@@ -91,6 +88,16 @@ class FirstFrames:
             return relocaliser.locate(local, counts, detection_spread(xy, local, counts, label))
         finally:
             relocaliser.compatible = None  # the check reads this try's frames only
+
+    def plants(
+        self, cfg: SeasonConfig, since: float = -np.inf, until: float = np.inf
+    ) -> tuple[np.ndarray, np.ndarray, tuple[np.ndarray, np.ndarray, np.ndarray]]:
+        """The detections of [since, until] (s): which they are, where, and the plants they
+        make (`relocalise.cluster`: means, detections each, the plant of each)."""
+        times = np.asarray(self.t)
+        keep = (times >= since) & (times <= until)
+        xy = np.array(self.xy).reshape(-1, 2)[keep]
+        return keep, xy, cluster(xy, cfg.cluster_radius)
 
     def localised(self, fix: Fix, t: float) -> None:
         """Take `fix`, found at t."""
