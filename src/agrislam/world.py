@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import dataclasses
 from collections import Counter
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any, NoReturn
 
@@ -17,7 +18,7 @@ from agrislam.maintenance.maintainer import MaintenanceResult
 from agrislam.mapping.objects import ObjectTable
 from agrislam.records import Anchor, Detections, FieldPrior, GnssFix, Meta, Odometry, Record
 from agrislam.season.field_learning import FieldLearning
-from agrislam.season.newcomers import Held, Newcomers, not_placed_issue, placed_issue
+from agrislam.season.newcomers import Newcomers, not_placed_issue, placed_issue
 from agrislam.season.prior_map import PriorMap
 from agrislam.semantics.beliefs import BeliefTable
 from agrislam.semantics.heuristic import interest_surface
@@ -117,9 +118,10 @@ class WorldModel:
     # ------------------------------------------------------------------ records in
 
     def process(self, record: Record) -> StepReport | None:
-        """Feed one record; a frame of detections runs a pipeline step. The records of a
-        robot without a start pose wait until it is placed (season/newcomers.py); its
-        frames are then mapped, their steps kept for `take_late_frames`."""
+        """Feed one record; a frame of detections runs a pipeline step. Records wait while
+        a survey without a field prior learns it (season/field_learning.py), and those of a
+        robot without a start pose until it is placed (season/newcomers.py); their frames
+        are then mapped, their steps kept for `take_late_frames`."""
         if isinstance(record, Meta):
             self.configure(record)
             self._meta = True
@@ -169,10 +171,7 @@ class WorldModel:
             ] += 1
             self._field = prior
             self._build()
-        for held in learning.held:
-            report = self.process(held)
-            if isinstance(held, Detections) and report is not None:
-                self._late.append((held, report))
+        self._replay(learning.held, self.process)
 
     def take_late_frames(self) -> list[tuple[Detections, StepReport]]:
         """The frames of robots placed late, with their steps, mapped since the last call."""
@@ -206,7 +205,7 @@ class WorldModel:
         for robot, start, held in self.newcomers.place(s.map, s.backend, season, t, last):
             self.issues[placed_issue(robot)] += 1
             s.frontend.use_starts({robot: start})
-            self._replay(held)
+            self._replay(held, self._map_record)
 
     def _last_newcomers(self) -> None:
         """The survey's end: the robots still waiting tried in the whole map; if no robot
@@ -218,14 +217,16 @@ class WorldModel:
                 f"robot {robot!r} has no start pose, and no robot with one drove: "
                 "it starts at the origin"
             ] += 1
-            self._replay(held)
+            self._replay(held, self._map_record)
         t = float(self.objects.last_update.max(initial=0.0))
         self._place_newcomers(t, last=True)
 
-    def _replay(self, held: list[Held]) -> None:
-        """Map the records held for a robot placed late, its steps kept."""
+    def _replay(
+        self, held: Sequence[Record], process: Callable[[Record], StepReport | None]
+    ) -> None:
+        """Map records that waited, in their order, their frames' steps kept."""
         for record in held:
-            report = self._map_record(record)
+            report = process(record)
             if isinstance(record, Detections) and report is not None:
                 self._late.append((record, report))
 

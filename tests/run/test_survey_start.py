@@ -18,7 +18,18 @@ import pytest
 from agrislam.config import AgrislamConfig
 from agrislam.io.sinks.jsonl import record_to_json
 from agrislam.io.sources.jsonl import read_log
-from agrislam.records import Detections, FieldPrior, GnssFix, Meta, Odometry, Record, TruthPose
+from agrislam.io.sources.sync import synchronise
+from agrislam.records import (
+    Detections,
+    FieldPrior,
+    GnssFix,
+    Meta,
+    Odometry,
+    Record,
+    TruthObject,
+    TruthPose,
+)
+from agrislam.run.checkpoint import RunState, dump_state, load_state
 from agrislam.run.pipeline import RunResult, run_survey
 from agrislam.sim.config import SimConfig
 from agrislam.sim.simulator import Simulator
@@ -137,3 +148,31 @@ def test_a_log_without_a_meta_is_mapped_in_its_first_robots_frame(records, clean
     assert "rows 0.98 m apart" in rows
     r2 = [i for i in result.issues if i.startswith("robot 'r2' has no start pose")]
     assert len(r2) == 1 and not any("weak prior" in i for i in result.issues)
+
+
+@pytest.mark.parametrize(
+    ("row", "at"),
+    [("a robot waiting to be placed", 0.5), ("the field learned", 0.05)],
+)
+def test_a_world_saved_while_records_wait_carries_on_to_the_same_map(records, row, at):
+    """A checkpoint taken while records wait (a robot not placed yet; a log without a meta
+    whose field is being learned) holds them: read back, the world maps as one never saved."""
+    edited = _renamed(records, "r2", "r9")
+    if row == "the field learned":
+        edited = [r for r in edited if not isinstance(r, Meta)]
+    synced = [r for r in synchronise(edited) if not isinstance(r, (TruthObject, TruthPose))]
+    cut = int(at * len(synced))
+    whole, saved = WorldModel(), WorldModel()
+    for record in synced[:cut]:
+        whole.process(record)
+        saved.process(record)
+    waiting = saved.newcomers.waiting or saved._learning
+    assert waiting, row
+    saved = load_state(dump_state(RunState(saved, None))).world
+    for world in (whole, saved):
+        for record in synced[cut:]:
+            world.process(record)
+        world.finish()
+    a, b = whole.snapshot(), saved.snapshot()
+    np.testing.assert_array_equal(a.objects.ids, b.objects.ids)
+    np.testing.assert_allclose(a.objects.xy, b.objects.xy, atol=1e-9)
