@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import dataclasses
 from collections import Counter
-from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any, NoReturn
 
@@ -17,8 +16,7 @@ from agrislam.config import AgrislamConfig, FieldSchema, Settings, effective
 from agrislam.maintenance.maintainer import MaintenanceResult
 from agrislam.mapping.objects import ObjectTable
 from agrislam.records import Anchor, Detections, FieldPrior, GnssFix, Meta, Odometry, Record
-from agrislam.season.field_learning import FieldLearning
-from agrislam.season.newcomers import Newcomers, not_placed_issue, placed_issue
+from agrislam.season.newcomers import Held, Newcomers, not_placed_issue, placed_issue
 from agrislam.season.prior_map import PriorMap
 from agrislam.semantics.beliefs import BeliefTable
 from agrislam.semantics.heuristic import interest_surface
@@ -40,10 +38,6 @@ STAGES = (
     "depth_bias",  # the depth bias learned from this frame's residuals
     "rows",  # row fits and row constraints
     "maintain",  # merge (and close a returning robot's loop), prune
-)
-NO_META = (
-    "no meta record: no schema, start poses, anchor or field prior; the map frame is the "
-    "first robot's first pose"
 )
 
 
@@ -82,9 +76,6 @@ class WorldModel:
         self._meta_schema: FieldSchema | None = None
         self._starts: dict = {}
         self._started = False  # a record other than a meta has been read
-        self._meta = False  # a meta has been read
-        self._learning: FieldLearning | None = None  # records held while the field is learned
-        self._learned = False
         self.newcomers = Newcomers()  # robots without a start pose, until placed
         self._late: list[tuple[Detections, StepReport]] = []  # their frames, once placed
         self._timer = StageTimer(STAGES)
@@ -118,19 +109,12 @@ class WorldModel:
     # ------------------------------------------------------------------ records in
 
     def process(self, record: Record) -> StepReport | None:
-        """Feed one record; a frame of detections runs a pipeline step. Records wait while
-        a survey without a field prior learns it (season/field_learning.py), and those of a
-        robot without a start pose until it is placed (season/newcomers.py); their frames
-        are then mapped, their steps kept for `take_late_frames`."""
+        """Feed one record; a frame of detections runs a pipeline step. The records of a
+        robot without a start pose wait until it is placed (season/newcomers.py); its
+        frames are then mapped, their steps kept for `take_late_frames`."""
         if isinstance(record, Meta):
             self.configure(record)
-            self._meta = True
             return None
-        if self._learns_field():
-            self._learn_field(record)
-            return None
-        if not (self._started or self._meta):
-            self.issues[NO_META] += 1
         self._started = True
         if isinstance(record, (Odometry, Detections, GnssFix)) and self._waits(record.robot):
             self.newcomers.hold(record, self.schema)
@@ -140,38 +124,6 @@ class WorldModel:
         if report is not None and self.newcomers.waiting:
             self._place_newcomers(record.t)
         return report
-
-    def _learns_field(self) -> bool:
-        """Whether the record was held for learning the field: a survey without a field
-        prior holds its first records until its first plants say whether they stand in rows
-        (season/field_learning.py); then its stages are built for that, and they are mapped."""
-        if self._learning is None:
-            learned = self._learned or self._started or self.prior is not None
-            if learned or not self.settings.landmarks:
-                return False
-            self._learning = FieldLearning()
-        return True
-
-    def _learn_field(self, record: Record | None) -> None:
-        """Hold `record` while learning; once the field is decided (or at the survey's end,
-        `record` None), build the stages for it and map the records held."""
-        learning, rows = self._learning, self.settings.rows
-        assert learning is not None
-        if record is not None:
-            if not learning.hold(record, self.settings.season, rows.first_fit_ambiguity):
-                return
-        else:
-            learning.learn(self.settings.season, rows.first_fit_ambiguity)
-        self._learning, self._learned = None, True
-        prior = learning.prior
-        if prior is not None:
-            self.issues[
-                f"no field prior: the first plants stand in rows {prior.row_spacing:.2f} m apart, "
-                f"{prior.min_plant_distance:.2f} m apart in the rows; mapped as a crop field"
-            ] += 1
-            self._field = prior
-            self._build()
-        self._replay(learning.held, self.process)
 
     def take_late_frames(self) -> list[tuple[Detections, StepReport]]:
         """The frames of robots placed late, with their steps, mapped since the last call."""
@@ -205,7 +157,7 @@ class WorldModel:
         for robot, start, held in self.newcomers.place(s.map, s.backend, season, t, last):
             self.issues[placed_issue(robot)] += 1
             s.frontend.use_starts({robot: start})
-            self._replay(held, self._map_record)
+            self._replay(held)
 
     def _last_newcomers(self) -> None:
         """The survey's end: the robots still waiting tried in the whole map; if no robot
@@ -217,16 +169,14 @@ class WorldModel:
                 f"robot {robot!r} has no start pose, and no robot with one drove: "
                 "it starts at the origin"
             ] += 1
-            self._replay(held, self._map_record)
+            self._replay(held)
         t = float(self.objects.last_update.max(initial=0.0))
         self._place_newcomers(t, last=True)
 
-    def _replay(
-        self, held: Sequence[Record], process: Callable[[Record], StepReport | None]
-    ) -> None:
-        """Map records that waited, in their order, their frames' steps kept."""
+    def _replay(self, held: list[Held]) -> None:
+        """Map the records held for a robot placed late, in their order, their steps kept."""
         for record in held:
-            report = process(record)
+            report = self._map_record(record)
             if isinstance(record, Detections) and report is not None:
                 self._late.append((record, report))
 
@@ -310,8 +260,6 @@ class WorldModel:
     def finish(self) -> MaintenanceResult:
         """End of the survey: solve the whole graph once more (the real-time estimate
         folds history away, sec. 2.6), then the last maintenance (maintenance/)."""
-        if self._learning is not None:  # the log ended before the field was decided
-            self._learn_field(None)
         stages = self.stages
         if self.newcomers.waiting:
             self._last_newcomers()

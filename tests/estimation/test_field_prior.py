@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from agrislam.estimation.field_prior import MIN_PLANTS, learn_field
+from agrislam.estimation.field_prior import MIN_PLANTS, field_of
 
 AMBIGUOUS = 0.5  # the row fit's first_fit_ambiguity
 
@@ -22,7 +22,7 @@ def rows(n_rows: int, per_row: int, spacing: float = 1.0, seed: int = 0) -> np.n
 
 @pytest.mark.parametrize("spacing", [0.75, 1.0, 1.5])
 def test_plants_in_rows_give_the_rows_spacing_and_the_plants(spacing: float) -> None:
-    prior = learn_field(rows(3, 9, spacing), AMBIGUOUS)
+    prior = field_of(rows(3, 9, spacing), AMBIGUOUS)
     assert prior is not None
     assert prior.row_spacing == pytest.approx(spacing, rel=0.02)
     assert 0.38 < prior.min_plant_distance < 0.45
@@ -31,7 +31,7 @@ def test_plants_in_rows_give_the_rows_spacing_and_the_plants(spacing: float) -> 
 
 def test_landmarks_not_in_rows_or_too_few_give_nothing() -> None:
     scattered = np.random.default_rng(1).uniform(0.0, 8.0, (40, 2))
-    assert learn_field(scattered, AMBIGUOUS) is None
+    assert field_of(scattered, AMBIGUOUS) is None
     few = rows(2, MIN_PLANTS // 2 - 1)
-    assert learn_field(few, AMBIGUOUS) is None
-    assert learn_field(rows(2, MIN_PLANTS // 2), AMBIGUOUS) is not None
+    assert field_of(few, AMBIGUOUS) is None
+    assert field_of(rows(2, MIN_PLANTS // 2), AMBIGUOUS) is not None

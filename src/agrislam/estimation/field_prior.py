@@ -21,7 +21,7 @@ PLANTS_CLOSER = 1.5  # the plants of a row stand this much closer than the rows 
 PLANT_PERCENTILE = 10  # of the nearest-neighbour distances: the plants' least spacing
 
 
-def learn_field(plants: np.ndarray, ambiguous: float) -> FieldPrior | None:
+def field_of(plants: np.ndarray, ambiguous: float) -> FieldPrior | None:
     """The field prior of the plants (k, 2), or None if they are not in rows: periodic
     (PERIODIC) across one direction, rivalled by no other more than `ambiguous` (as the
     row fit's first fit), the largest such spacing (half of it is as periodic), and closer

@@ -40,6 +40,7 @@ from agrislam.run.collector import PacedCollector, release_free_heap
 from agrislam.run.health import Health
 from agrislam.run.season import SeasonRun
 from agrislam.run.season_outputs import season_outputs
+from agrislam.season.field_learning import learn_field
 from agrislam.semantics.heuristic import interest_surface
 from agrislam.snapshot import MapSnapshot, Trajectory
 from agrislam.world import StepReport, WorldModel
@@ -208,7 +209,10 @@ def _run(
     error = None
     try:
         with PacedCollector() as collector:  # no full collection mid-step
-            gated = synced if season is None else season.gate(synced, world)
+            if season is None:  # the field prior a log does not give, from its plants
+                gated = learn_field(synced, world.config, issues)
+            else:
+                gated = season.gate(synced, world)
             for position, record in enumerate(_split_labels(gated, world, issues), 1):
                 if position > state.position:  # else mapped before the checkpoint resumed
                     frame = _feed(record, world, state.truth, state.health)

@@ -1,20 +1,67 @@
-"""A survey whose log gives no field prior (no meta, or a meta without `field`): its records
+"""A survey as its log starts it, when the log says too little: without a meta it is said in
+the run's issues; without a field prior (no meta, or a meta without `field`) its records
 wait while the first robot's first frames, by dead reckoning (first_frames.py), say whether
-its plants stand in rows (estimation/field_prior.py). The world then builds its stages for
-the field so learned, or as point landmarks if the plants are not in rows within
-LEARN_FOR_S of driving, and maps the records held in their order."""
+its plants stand in rows (estimation/field_prior.py). Found, the meta goes on with the field
+prior learned and the survey is mapped as a crop field; else as point landmarks
+(config/effective.py), its records as they came.
+
+A stream adapter of the run (`learn_field`), before the world: what it yields depends on the
+records alone, so a run resumed from a checkpoint, reading the log again, is given the same
+stream."""
 
 from __future__ import annotations
 
+import dataclasses
+from collections import Counter
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
+from itertools import chain
 
-from agrislam.config import SeasonConfig
-from agrislam.estimation.field_prior import learn_field
-from agrislam.records import Detections, FieldPrior, Odometry, Record
+from agrislam.config import AgrislamConfig, SeasonConfig, effective
+from agrislam.estimation.field_prior import field_of
+from agrislam.records import Detections, FieldPrior, Meta, Odometry, Record
 from agrislam.season.first_frames import FirstFrames
 
 LEARN_EVERY_S = 5.0  # s of the first robot's driving between two tries
 LEARN_FOR_S = 60.0  # s after which a survey not found in rows is mapped as landmarks
+NO_META = (
+    "no meta record: no schema, start poses, anchor or field prior; the map frame is the "
+    "first robot's first pose"
+)
+
+
+def learn_field(
+    records: Iterable[Record], config: AgrislamConfig, issues: Counter[str]
+) -> Iterator[Record]:
+    """`records` with a meta carrying the field prior their first plants show, when the log
+    gives none and the config leaves the survey to be mapped as landmarks; a log without a
+    meta is counted in `issues`, as is a field learned."""
+    it = iter(records)
+    first = next(it, None)
+    if first is None:
+        return
+    meta = first if isinstance(first, Meta) else None
+    if meta is None:
+        issues[NO_META] += 1
+        it = chain([first], it)
+    if not effective(config, meta.field if meta is not None else None).landmarks:
+        yield from chain([meta] if meta is not None else [], it)
+        return
+    learning = FieldLearning()
+    rows = config.advanced.rows.first_fit_ambiguity
+    for record in it:
+        if learning.hold(record, config.advanced.season, rows):
+            break
+    else:  # the log ended before the field was decided
+        learning.learn(config.advanced.season, rows)
+    prior = learning.prior
+    if prior is not None:
+        issues[
+            f"no field prior: the first plants stand in rows {prior.row_spacing:.2f} m apart, "
+            f"{prior.min_plant_distance:.2f} m apart in the rows; mapped as a crop field"
+        ] += 1
+        meta = dataclasses.replace(meta or Meta(), field=prior)
+    yield from chain([meta] if meta is not None else [], learning.held, it)
 
 
 @dataclass
@@ -50,5 +97,5 @@ class FieldLearning:
         if self.first is None:
             return False
         _, _, (plants, counts, _) = self.frames[self.first].plants(cfg)
-        self.prior = learn_field(plants[counts >= 2], ambiguous)
+        self.prior = field_of(plants[counts >= 2], ambiguous)
         return self.prior is not None
