@@ -118,7 +118,7 @@ class WorldModel:
         self._started = True
         if isinstance(record, (Odometry, Detections, GnssFix)) and self._waits(record.robot):
             self.newcomers.hold(record, self.schema)
-            self._place_newcomers(record.t)
+            self._place_newcomers(record.t, record.robot)
             return None
         report = self._map_record(record)
         if report is not None and self.newcomers.waiting:
@@ -150,13 +150,15 @@ class WorldModel:
             return False
         return bool(self._starts) or any(c.started for c in robots.values())
 
-    def _place_newcomers(self, t: float, last: bool = False) -> None:
+    def _place_newcomers(self, t: float, robot: str | None = None, last: bool = False) -> None:
         """Start each waiting robot whose first frames now fit the map, and map its
-        records held (`last`: the survey's end, a last try in the whole map)."""
+        records held (`robot`: whose record came; `last`: the survey's end, a last try in
+        the whole map)."""
         s, season = self.stages, self.settings.season
-        for robot, start, held in self.newcomers.place(s.map, s.backend, season, t, last):
-            self.issues[placed_issue(robot)] += 1
-            s.frontend.use_starts({robot: start})
+        placed = self.newcomers.place(s.map, s.backend, season, t, robot, last)
+        for name, start, held in placed:
+            self.issues[placed_issue(name)] += 1
+            s.frontend.use_starts({name: start})
             self._replay(held)
 
     def _last_newcomers(self) -> None:

@@ -82,23 +82,28 @@ class Newcomers:
         backend: GraphBackend,
         cfg: SeasonConfig,
         t: float,
+        robot: str | None = None,
         last: bool = False,
     ) -> list[tuple[str, RobotStart, list[Held]]]:
         """The newcomers whose first frames now fit the map, with their start priors and
-        records held: a robot's first window_s of frames is tried in each new registration
-        map (`GROWTH`), and while it drives its latest window_s every attempt_every_s.
-        `last`: the survey's end, both tried once more in the whole map."""
+        records held: every robot's first window_s of frames is tried in each new
+        registration map (`GROWTH`); `robot`, whose record came, its latest window_s every
+        attempt_every_s of its driving. `last`: the survey's end, every robot's both tried
+        once more in the whole map."""
+        reg = self._registration(map_state, backend, cfg, last)
+        if reg is None:
+            return []
+        fresh = last or any(w.tried < reg.version for w in self.waiting.values())
+        names = list(self.waiting) if fresh else [robot] if robot in self.waiting else []
+        check = _attributes(map_state, reg.ids, t)
         out = []
-        for name, waiting in list(self.waiting.items()):
+        for name in names:
+            waiting = self.waiting[name]
             frames = waiting.frames
             if not frames.t:
                 continue
-            reg = self._registration(map_state, backend, cfg, last)
-            if reg is None:
-                continue
-            check = _attributes(map_state, reg.ids, t)
             first, now = frames.t[0], frames.t[-1]
-            due = frames.due(now, cfg.attempt_every_s) or last
+            due = (name == robot and frames.due(now, cfg.attempt_every_s)) or last
             starting = now - first <= cfg.window_s  # its latest frames are its first
             fix = None
             if waiting.tried < reg.version or (starting and due):
