@@ -29,7 +29,7 @@ Held = Odometry | Detections | GnssFix
 
 
 def placed_issue(robot: str) -> str:
-    return f"robot {robot!r} has no start pose: placed where its first detections fit the map"
+    return f"robot {robot!r} has no start pose: placed where its detections fit the map"
 
 
 def not_placed_issue(robot: str, reason: str) -> str:
