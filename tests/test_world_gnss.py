@@ -79,3 +79,35 @@ def test_a_survey_with_fixes_maps_without_the_row_prior_unless_configured() -> N
     result = run_survey(late, fixed_late)
     assert result.gnss["used"] > 0
     assert rows(fixed_late) is not None and rows(fixed_late).angle is not None
+
+
+def _moved(records: list, north_m) -> list:
+    """The records with the k-th fix moved `north_m(k)` metres north."""
+    out, k = [], 0
+    for r in records:
+        if isinstance(r, GnssFix):
+            r = dataclasses.replace(r, lat=r.lat + north_m(k) / 111_320.0)
+            k += 1
+        out.append(r)
+    return out
+
+
+@pytest.mark.parametrize(
+    ("row", "north_m"),
+    [
+        ("fixes alternating 50 m either side", lambda k: 50.0 if k % 2 else -50.0),
+        ("fixes alternating 550 m either side", lambda k: 550.0 if k % 2 else -550.0),
+        ("every fix 1,000 km from the anchor", lambda k: 1.0e6),
+    ],
+)
+def test_gnss_that_disagrees_with_everything_is_rejected_as_a_whole(row, north_m) -> None:
+    """The map is the odometry's and the plants', as good as with fixes that agree (never an
+    indeterminate system); the fixes are counted and the rejection said."""
+    records = survey(True)
+    clean = run_survey(records, WorldModel())
+    result = run_survey(_moved(records, north_m), WorldModel())
+    mapped = result.metrics["objects"]["mapped_fraction"]
+    assert mapped >= 0.95 * clean.metrics["objects"]["mapped_fraction"], row
+    assert "used" not in result.gnss and result.gnss["rejected_disagreeing"] > 0
+    (issue,) = [i for i in result.issues if i.startswith("GNSS fixes of robot 'r1' disagree")]
+    assert "the map kept to the odometry and the plants" in issue

@@ -16,6 +16,7 @@ from agrislam.config import AgrislamConfig, FieldSchema, Settings, effective
 from agrislam.maintenance.maintainer import MaintenanceResult
 from agrislam.mapping.objects import ObjectTable
 from agrislam.records import Anchor, Detections, FieldPrior, GnssFix, Meta, Odometry, Record
+from agrislam.season.newcomers import Held, Newcomers, not_placed_issue, placed_issue
 from agrislam.season.prior_map import PriorMap
 from agrislam.semantics.beliefs import BeliefTable
 from agrislam.semantics.heuristic import interest_surface
@@ -75,6 +76,8 @@ class WorldModel:
         self._meta_schema: FieldSchema | None = None
         self._starts: dict = {}
         self._started = False  # a record other than a meta has been read
+        self.newcomers = Newcomers()  # robots without a start pose, until placed
+        self._late: list[tuple[Detections, StepReport]] = []  # their frames, once placed
         self._timer = StageTimer(STAGES)
         self._build()
 
@@ -106,11 +109,28 @@ class WorldModel:
     # ------------------------------------------------------------------ records in
 
     def process(self, record: Record) -> StepReport | None:
-        """Feed one record; a frame of detections runs a pipeline step."""
+        """Feed one record; a frame of detections runs a pipeline step. The records of a
+        robot without a start pose wait until it is placed (season/newcomers.py); its
+        frames are then mapped, their steps kept for `take_late_frames`."""
         if isinstance(record, Meta):
             self.configure(record)
             return None
         self._started = True
+        if isinstance(record, (Odometry, Detections, GnssFix)) and self._waits(record.robot):
+            self.newcomers.hold(record, self.schema)
+            self._place_newcomers(record.t, record.robot)
+            return None
+        report = self._map_record(record)
+        if report is not None and self.newcomers.waiting:
+            self._place_newcomers(record.t)
+        return report
+
+    def take_late_frames(self) -> list[tuple[Detections, StepReport]]:
+        """The frames of robots placed late, with their steps, mapped since the last call."""
+        late, self._late = self._late, []
+        return late
+
+    def _map_record(self, record: Record) -> StepReport | None:
         if isinstance(record, Odometry):
             self.stages.frontend.add_odometry(record)
         elif isinstance(record, Detections):
@@ -118,6 +138,55 @@ class WorldModel:
         elif isinstance(record, GnssFix):
             self.add_gnss(record)
         return None  # truth records are for evaluation only
+
+    def _waits(self, robot: str) -> bool:
+        """Whether a robot's records wait for it to be placed: it has no start pose while
+        the map frame is set (by a start pose of the meta, or by a robot that started)."""
+        if robot in self.newcomers.waiting:
+            return True
+        robots = self.stages.frontend.robots
+        chain = robots.get(robot)
+        if chain is not None and (chain.started or chain.start_pose is not None):
+            return False
+        return bool(self._starts) or any(c.started for c in robots.values())
+
+    def _place_newcomers(self, t: float, robot: str | None = None, last: bool = False) -> None:
+        """Start each waiting robot whose first frames now fit the map, and map its
+        records held (`robot`: whose record came; `last`: the survey's end, a last try in
+        the whole map)."""
+        s, season = self.stages, self.settings.season
+        placed = self.newcomers.place(s.map, s.backend, season, t, robot, last)
+        for name, start, held in placed:
+            self.issues[placed_issue(name)] += 1
+            s.frontend.use_starts({name: start})
+            self._replay(held)
+
+    def _last_newcomers(self) -> None:
+        """The survey's end: the robots still waiting tried in the whole map; if no robot
+        drove, the first of them starts at the origin (the spec: it was the first robot
+        seen) and the others are tried in its map."""
+        if not any(c.started for c in self.stages.frontend.robots.values()):
+            robot, held = self.newcomers.first()
+            self.issues[
+                f"robot {robot!r} has no start pose, and no robot with one drove: "
+                "it starts at the origin"
+            ] += 1
+            self._replay(held)
+        t = float(self.objects.last_update.max(initial=0.0))
+        self._place_newcomers(t, last=True)
+
+    def _replay(self, held: list[Held]) -> None:
+        """Map the records held for a robot placed late, in their order, their steps kept."""
+        for record in held:
+            report = self._map_record(record)
+            if isinstance(record, Detections) and report is not None:
+                self._late.append((record, report))
+
+    @property
+    def frame_free(self) -> bool:
+        """Whether the map frame is only the first robot's first pose: no start pose given
+        and no GNSS fix used (a map to be aligned before it is scored against truth)."""
+        return not self._starts and not self.stages.estimators.gnss.counts.get("used")
 
     def configure(self, meta: Meta) -> None:
         """Take the schema, start poses, anchor and field knowledge of a survey. Before the
@@ -194,11 +263,15 @@ class WorldModel:
         """End of the survey: solve the whole graph once more (the real-time estimate
         folds history away, sec. 2.6), then the last maintenance (maintenance/)."""
         stages = self.stages
+        if self.newcomers.waiting:
+            self._last_newcomers()
         stages.backend.refine()
         robots = stages.frontend.robots
         for name, chain in robots.items():
             if not chain.started:
                 self.issues[f"robot {name!r} is in the meta but has no records"] += 1
+        for name, (frames, reason) in self.newcomers.not_placed().items():
+            self.issues[not_placed_issue(name, reason)] += frames
         t = float(self.objects.last_update.max(initial=0.0))
         trajectory = stages.backend.trajectory
         return stages.maintainer.finish(

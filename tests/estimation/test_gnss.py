@@ -191,6 +191,25 @@ def test_without_consistency_the_gate_waits_for_reacquire() -> None:
     assert gnss.counts["rejected_gate"] == 4
 
 
+def test_fixes_that_agree_on_a_place_farther_than_any_drift_are_refused() -> None:
+    """Fixes 30 m north of a robot its start holds, agreeing with each other, after 5 m of
+    driving: farther than it can have drifted (5 m + 10 % of 5 m)."""
+    gnss = gate_run([(float(i), 30.0) for i in range(6)])
+    assert gnss.counts["used"] == 0
+    assert gnss.counts["rejected_beyond_drift"] == 4  # the 3rd agreeing one on
+
+
+def test_gnss_that_disagrees_with_everything_is_rejected_as_a_whole() -> None:
+    """Fixes alternating 50 m either side of the track: none agrees with the odometry or
+    with another; after 20 refused the robot's GNSS is rejected, and said so."""
+    fixes = [(float(i), 50.0 if i % 2 else -50.0) for i in range(30)]
+    gnss = gate_run(fixes)
+    assert gnss.counts["used"] == 0
+    assert gnss.counts["rejected_disagreeing"] == 10  # the rest after the 20th
+    (issue,) = gnss.issues
+    assert issue.startswith("GNSS fixes of robot 'r1' disagree with its odometry and the plants")
+
+
 def test_kernel_width_is_in_innovation_standard_deviations() -> None:
     fix = np.eye(2) * 0.02**2
     assert kernel_width(fix, fix, 2.0) == pytest.approx(2.0)

@@ -120,6 +120,22 @@ def test_first_fit_waits_until_the_angle_is_unambiguous():
         assert np.all(tracker.row_of(np.arange(len(points))) >= 0)
 
 
+def test_a_given_angle_the_plants_contradict_is_replaced_and_reported():
+    """Rows at 10 deg, given at 100 deg (the meta's x and y swapped): the first fit finds
+    the plants' angle and says so; one given about right is a prior, as before."""
+    points = rows_of_points(n_rows=4, per_row=6, noise=0.0)
+    said = {}
+    for given in (100.0, 10.5):
+        g = backend_with_objects(points)
+        tracker = RowTracker(RowsConfig(n_det_est=12, min_detections=1, row_angle_deg=given))
+        tracker.after_step(g, np.arange(len(points)), len(points), np.ones(len(points), int))
+        assert math.degrees(tracker.lines().angle) == pytest.approx(10.0, abs=0.3)
+        said[given] = list(tracker.issues)
+    (replaced,) = said[100.0]
+    assert replaced.startswith("row angle 100 deg given, but the plants lie in rows at about 10")
+    assert said[10.5] == []
+
+
 def test_meta_prior_sets_spacing_and_angle():
     tracker = RowTracker(RowsConfig())
     tracker.use_prior(FieldPrior(row_spacing=0.75, row_angle_deg=30.0))

@@ -236,7 +236,10 @@ class AdvancedRows(StrictModel):
         3, ge=1, description="frames an object is seen in before it may join a row"
     )
     angle_prior_sigma_deg: float = Field(
-        1.0, ge=0.0, description="std of a given row_angle_deg as a prior; 0 fixes the angle"
+        1.0,
+        ge=0.0,
+        description="std of a given row_angle_deg as a prior; 0 fixes the angle (an angle the "
+        "plants contradict is replaced by the fitted one, and reported)",
     )
 
 

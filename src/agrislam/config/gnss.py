@@ -57,6 +57,26 @@ class AdvancedGnss(_Strict):
     gate_reacquire: int = Field(
         10, ge=0, description="after this many fixes in a row beyond the gate, take the next"
     )
+    drift_floor: float = Field(
+        5.0,
+        ge=0.0,
+        description="m: the farthest fixes beyond the gate (taken as agreeing, or on "
+        "reacquiring) may put a robot from where its start pose or its last fix taken held "
+        "it, before it drives (a start marker's, an anchor's error)...",
+    )
+    drift_per_m: float = Field(
+        0.1,
+        ge=0.0,
+        description="...and farther by this per metre driven since: odometry drifts a few "
+        "per cent of the distance; fixes farther off are wrong, not the pose",
+    )
+    reject_whole_after: int = Field(
+        20,
+        ge=1,
+        description="a robot whose fixes were refused this many times, and four times as "
+        "often as taken, has its GNSS rejected as a whole: the map stays the odometry's and "
+        "the plants'",
+    )
 
 
 class GnssConfig(GnssSection, AdvancedGnss):

@@ -27,6 +27,13 @@ class SeasonConfig(_Strict):
     min_inlier_fraction: float = Field(
         0.6, gt=0.0, le=1.0, description="share of the first-frames plants the map must explain"
     )
+    newcomer_inlier_fraction: float = Field(
+        0.4,
+        gt=0.0,
+        le=1.0,
+        description="the same for a robot without a start pose placed in the map being built: "
+        "less, as that map may not yet reach all its first frames saw",
+    )
     max_ambiguity: float = Field(
         0.7,
         gt=0.0,

@@ -30,8 +30,9 @@ class Estimators:
         self.depth_bias = DepthBiasEstimator(sensor.depth_bias)
         self.sensor = SensorCalibration(sensor.estimate_biases)
         self.spacing = PointSpacing(settings.association.d_inter)
-        self.gnss = GnssFixes(settings.gnss)
-        self.rows = RowTracker(settings.rows) if settings.rows.enabled else None
+        self.gnss = GnssFixes(settings.gnss, backend.issues)
+        rows = settings.rows
+        self.rows = RowTracker(rows, backend.issues) if rows.enabled else None
         self.depth_min_views = sensor.depth_bias_min_views if sensor.estimate_depth_bias else None
         self.map, self.backend = map_state, backend
 

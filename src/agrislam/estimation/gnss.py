@@ -71,24 +71,32 @@ class PendingFix:
 @dataclass(slots=True)
 class GateState:
     """A robot's gate: the fixes rejected in a row, the last of them and how many before it
-    agreed with each other, and the drift the gate is widened by (module docstring)."""
+    agreed with each other, and the drift the gate is widened by (module docstring); how
+    far it drove since its pose was last held (by its start or a fix taken); its fixes
+    taken and refused, and whether its GNSS was rejected as a whole."""
 
     beyond: int = 0
     last: Innovation | None = None
     agreeing: int = 0
     drift: np.ndarray = field(default_factory=lambda: np.zeros((2, 2)))
+    driven: float = 0.0
+    at: np.ndarray | None = None  # the dead-reckoned pose at the last pose node
+    taken: int = 0
+    refused: int = 0
+    rejected: bool = False
 
 
 class GnssFixes:
     """The world's GNSS stage: fixes wait for their robot's next pose node, then become
     factors; `counts` says how many were used and why the others were not."""
 
-    def __init__(self, cfg: GnssConfig) -> None:
+    def __init__(self, cfg: GnssConfig, issues: Counter[str] | None = None) -> None:
         self.cfg = cfg
         self.frame: MapFrame | None = None
         self.pending: dict[str, list[PendingFix]] = {}
         self.counts: Counter[str] = Counter()
         self.gates: dict[str, GateState] = {}
+        self.issues = Counter() if issues is None else issues  # a GNSS rejected as a whole
 
     def receive(
         self, fix: GnssFix, anchor: Anchor | None, dead_reckoning: np.ndarray
@@ -122,24 +130,43 @@ class GnssFixes:
     ) -> None:
         """The robot's waiting fixes as factors on its latest pose node: the odometry since
         each fix moves its lever arm; a fix beyond the gate is rejected, unless it and the
-        ones before it show that the pose drifted."""
-        fixes = self.pending.pop(robot, [])
-        if not fixes:
-            return
-        pose = backend.current_pose(robot)
-        kernel = KERNELS.index(self.cfg.robust_kernel)
+        ones before it show that the pose drifted, as far as it can have drifted. A robot
+        whose fixes keep being refused has its GNSS rejected as a whole, and said so."""
         gate = self.gates.setdefault(robot, GateState())
+        if gate.at is not None:
+            gate.driven += float(np.linalg.norm(dead_reckoning[:2] - gate.at[:2]))
+        gate.at = np.asarray(dead_reckoning, dtype=float).copy()
+        fixes = self.pending.pop(robot, [])
+        if gate.rejected:
+            self.counts["rejected_disagreeing"] += len(fixes)
+            return
+        pose = backend.current_pose(robot) if fixes else None
+        kernel = KERNELS.index(self.cfg.robust_kernel)
         for fix in fixes:
             since = se2.between(dead_reckoning, fix.dead_reckoning)  # fix pose in node frame
             lever = antenna_position(since, fix.lever)
             new = self._innovation(pose, pose_cov, lever, fix)
             innovation_cov = self._admit(gate, new, gated=pose_cov is not None)
-            if innovation_cov is None:
-                self.counts["rejected_gate"] += 1
+            if isinstance(innovation_cov, str):
+                self.counts[innovation_cov] += 1
+                self._refused(robot, gate)
                 continue
             width = kernel_width(fix.cov, innovation_cov, self.cfg.robust_k)
             backend.add_gnss(robot, np.array([*fix.z, *lever, width, kernel]), fix.cov)
             self.counts["used"] += 1
+            gate.taken, gate.driven = gate.taken + 1, 0.0
+
+    def _refused(self, robot: str, gate: GateState) -> None:
+        """One more fix refused: the robot's GNSS rejected as a whole once fixes are refused
+        `reject_whole_after` times, four times as often as taken."""
+        gate.refused += 1
+        if gate.refused >= self.cfg.reject_whole_after and gate.refused > 4 * gate.taken:
+            gate.rejected = True
+            self.issues[
+                f"GNSS fixes of robot {robot!r} disagree with its odometry and the plants "
+                f"({gate.refused} refused, {gate.taken} taken): the rest rejected, the map "
+                "kept to the odometry and the plants"
+            ] += 1
 
     @staticmethod
     def _innovation(
@@ -149,11 +176,12 @@ class GnssFixes:
         share = np.zeros((2, 2)) if pose_cov is None else jac @ pose_cov @ jac.T
         return Innovation(antenna_position(pose, lever) - fix.z, fix.cov, share)
 
-    def _admit(self, gate: GateState, new: Innovation, gated: bool) -> np.ndarray | None:
-        """The innovation covariance a fix is taken with, or None when the gate rejects
-        it: beyond the chi2 gate (widened by any drift found) unless it is the
+    def _admit(self, gate: GateState, new: Innovation, gated: bool) -> np.ndarray | str:
+        """The innovation covariance a fix is taken with, or why the gate rejects it:
+        beyond the chi2 gate (widened by any drift found) unless it is the
         `gate_consistent`-th in a row to agree with the one before, or the
-        `gate_reacquire`-th in a row beyond it."""
+        `gate_reacquire`-th in a row beyond it, and within the drift the robot's driving
+        allows (`drift_floor`, `drift_per_m`)."""
         chi2 = self.cfg.gate_chi2
         plain = new.fix_cov + new.pose_cov
         if chi2 <= 0.0 or not gated:  # no gate, or no pose covariance to gate with
@@ -170,7 +198,10 @@ class GnssFixes:
         gate.last = new
         drifted = 0 < self.cfg.gate_consistent <= gate.agreeing + 1
         if not drifted and gate.beyond <= self.cfg.gate_reacquire:
-            return None
+            return "rejected_gate"
+        reach = self.cfg.drift_floor + self.cfg.drift_per_m * gate.driven
+        if float(np.linalg.norm(new.residual)) > reach:
+            return "rejected_beyond_drift"  # farther than the pose can have drifted
         # the pose drifted: take the fix, and the next ones as far off as it was
         gate.drift = np.outer(new.residual, new.residual)
         gate.beyond, gate.last, gate.agreeing = 0, None, 0

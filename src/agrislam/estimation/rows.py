@@ -5,6 +5,7 @@ holds the plants near it across the row only."""
 from __future__ import annotations
 
 import math
+from collections import Counter
 
 import numpy as np
 
@@ -23,6 +24,9 @@ GAUSS_NEWTON_ITERATIONS = 5
 FIT_POINTS = 3000
 # a refit that turns the rows by more than this rebuilds the row constraints
 REBUILD_ANGLE = math.radians(0.2)
+# a given row angle at which the plants are less periodic than this share of their best
+# angle's periodicity is contradicted by them: the fitted angle replaces it
+CONTRADICTED = 0.5
 
 
 def periodicity(points: np.ndarray, angles: np.ndarray, spacing: float) -> np.ndarray:
@@ -105,8 +109,9 @@ class RowTracker:
     """Decides when to fit rows, which plants belong to which row, and adds the row nodes
     and constraints to the back end (sec. 2.6.2)."""
 
-    def __init__(self, config: RowsConfig) -> None:
+    def __init__(self, config: RowsConfig, issues: Counter[str] | None = None) -> None:
         self.config = config
+        self.issues = Counter() if issues is None else issues  # a prior replaced is one
         self.spacing = config.row_spacing
         self.angle_prior = (
             None if config.row_angle_deg is None else math.radians(config.row_angle_deg)
@@ -165,9 +170,11 @@ class RowTracker:
     def _fit(self, backend: GraphBackend, frames_seen: np.ndarray) -> None:
         ids, points = self._fit_points(backend, frames_seen)
         previous = self.angle
-        angle0 = previous if previous is not None else self.angle_prior
         if previous is None and len(ids) < self.config.min_fit_objects:
             return
+        if previous is None and self.angle_prior is not None and not self._prior_holds(points):
+            return
+        angle0 = previous if previous is not None else self.angle_prior
         if angle0 is None:  # the first fit: kept only once no other angle rivals it
             angle0 = search_angle(points, self.spacing)
             if ambiguity(points, angle0, self.spacing) > self.config.first_fit_ambiguity:
@@ -190,6 +197,25 @@ class RowTracker:
         self.fits += 1
         if previous is not None and abs(math.remainder(angle - previous, math.pi)) > REBUILD_ANGLE:
             self._rebuild(backend)
+
+    def _prior_holds(self, points: np.ndarray) -> bool:
+        """Whether the given row angle may be fitted from: the plants are as periodic at it
+        as at their best angle, nearly. If not, and that best angle is unambiguous, it
+        replaces the given one (reported); False while it is ambiguous (the first fit waits)."""
+        assert self.angle_prior is not None
+        best = search_angle(points, self.spacing)
+        at = periodicity(points, np.array([self.angle_prior, best]), self.spacing)
+        if at[0] >= CONTRADICTED * at[1]:
+            return True
+        if ambiguity(points, best, self.spacing) > self.config.first_fit_ambiguity:
+            return False
+        given, fitted = math.degrees(self.angle_prior), math.degrees(best)
+        self.issues[
+            f"row angle {given:g} deg given, but the plants lie in rows at about {fitted:.0f} "
+            "deg: the fitted angle used"
+        ] += 1
+        self.angle_prior = None
+        return True
 
     def _rebuild(self, backend: GraphBackend) -> None:
         """The rows turned: their constraints are replaced by ones at the new angle."""

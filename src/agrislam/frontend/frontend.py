@@ -19,8 +19,6 @@ from agrislam.geometry.placed import FrameMatch, PlacedDetections
 from agrislam.records import Anchor, Detection, Detections, GnssFix, Odometry, RobotStart
 from agrislam.semantics.measurements import informative_measurements
 
-WEAK_START_SIGMA = np.array([10.0, 10.0, np.pi])  # a later robot without a start pose
-
 
 class FrontEnd:
     """Odometry chains, pose nodes, GNSS factors, placed detections and their factors."""
@@ -130,16 +128,13 @@ class FrontEnd:
 
     # ----------------------------------------------------------------- helpers
     def chain(self, name: str, t: float) -> OdometryChain:
-        """The robot's odometry chain, started in the back end at its first record's time."""
+        """The robot's odometry chain, started in the back end at its first record's time:
+        at its start pose, or at the origin (the world places a later robot without one
+        before its first record comes here: season/newcomers.py)."""
         chain = self.robots.get(name)
         if chain is None:
             chain = self.robots[name] = OdometryChain()
         if not chain.started:
-            if chain.start_pose is None and any(c.started for c in self.robots.values()):
-                # spec: a later robot without a start pose must be placed from shared
-                # landmarks; a weak prior at the origin lets the graph do so
-                self.issues[f"robot {name!r} has no start pose: weak prior at the origin"] += 1
-                chain.start_sigma = WEAK_START_SIGMA.copy()
             start = np.zeros(3) if chain.start_pose is None else chain.start_pose
             self.backend.add_robot(name, start, chain.start_sigma, t)
             chain.start(start, t)

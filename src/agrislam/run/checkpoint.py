@@ -40,8 +40,9 @@ from agrislam.world import WorldModel
 # 8: the world's maintenance.Merger; 9: the Merger's sets of objects detected together;
 # 10: the world's rejoin.Rejoiner; 13: the objects RangeOutliers watches and has judged;
 # 15: the run's health, run/health.py; 16: the sensor calibration, estimation/sensor_calibration.py;
-# 17: the returning robots, association/returning.py)
-FORMAT = b"agrislam-checkpoint 17"
+# 17: the returning robots, association/returning.py; 18: the robots waiting to be placed,
+# season/newcomers.py)
+FORMAT = b"agrislam-checkpoint 18"
 # the modules a checkpoint's objects may come from
 TRUSTED_MODULES = {"agrislam", "numpy", "collections", "copyreg", "builtins", "pydantic"}
 TRUSTED_MODULES |= {"pydantic_core", "scipy"}

@@ -40,9 +40,10 @@ from agrislam.run.collector import PacedCollector, release_free_heap
 from agrislam.run.health import Health
 from agrislam.run.season import SeasonRun
 from agrislam.run.season_outputs import season_outputs
+from agrislam.season.field_learning import learn_field
 from agrislam.semantics.heuristic import interest_surface
 from agrislam.snapshot import MapSnapshot, Trajectory
-from agrislam.world import WorldModel
+from agrislam.world import StepReport, WorldModel
 
 
 @dataclass(slots=True)
@@ -112,6 +113,7 @@ class RunResult:
     checkpoints: dict[str, Any] | None = None  # resumed at which record, checkpoints taken
     season: dict[str, Any] | None = None  # a survey that continued a saved map
     health: Health = field(default_factory=Health)  # what the map did, minute by minute
+    align: bool = False  # the map frame is the first robot's first pose: aligned to be scored
 
     @property
     def usable(self) -> bool:
@@ -207,7 +209,10 @@ def _run(
     error = None
     try:
         with PacedCollector() as collector:  # no full collection mid-step
-            gated = synced if season is None else season.gate(synced, world)
+            if season is None:  # the field prior a log does not give, from its plants
+                gated = learn_field(synced, world.config, issues)
+            else:
+                gated = season.gate(synced, world)
             for position, record in enumerate(_split_labels(gated, world, issues), 1):
                 if position > state.position:  # else mapped before the checkpoint resumed
                     frame = _feed(record, world, state.truth, state.health)
@@ -220,7 +225,9 @@ def _run(
                         state = _carry_on(world, checkpoints.take(state))
                 if progress is not None:
                     progress()
-            state.health.finish(world.finish())
+            done = world.finish()  # the robots placed at the end map their frames first
+            state.n_frames += _stepped(world.take_late_frames(), state.truth, state.health)
+            state.health.finish(done)
             if season is not None:
                 season.finish(world)
     except (Exception, KeyboardInterrupt) as err:  # the map so far is still written
@@ -245,6 +252,7 @@ def _run(
             "seconds": checkpoints.seconds,
         }
     result.snapshot = _snapshot(world, result)
+    result.align = world.frame_free
     scoring = result.snapshot is not None and truth.present
     final_ids = world.resolve(np.arange(len(world.objects))) if scoring else None
     writing = folder is not None and (counts or error is None)
@@ -290,21 +298,29 @@ def _carry_on(world: WorldModel, state: RunState) -> RunState:
 
 
 def _feed(record: Record, world: WorldModel, truth: Truth, health: Health) -> int:
-    """One record to the world model (truth aside, the step's health kept); 1 if it was a
-    frame it mapped."""
+    """One record to the world model (truth aside, the steps' health kept); the frames it
+    mapped: this one, and those of a robot it placed (`WorldModel.take_late_frames`)."""
     if isinstance(record, TruthObject):
         truth.objects.add(record)
-    elif isinstance(record, TruthPose):
+        return 0
+    if isinstance(record, TruthPose):
         truth.add_pose(record)
-    else:
-        if isinstance(record, Meta) and record.field is not None:
-            truth.min_plant_distance = record.field.min_plant_distance
-        report = world.process(record)
-        if report is not None and isinstance(record, Detections):
-            truth.saw((d.truth_id for d in record.objects), report.object_ids)
-            health.step(report)
-            return 1
-    return 0
+        return 0
+    if isinstance(record, Meta) and record.field is not None:
+        truth.min_plant_distance = record.field.min_plant_distance
+    report = world.process(record)
+    frames = world.take_late_frames()
+    if report is not None and isinstance(record, Detections):
+        frames.append((record, report))
+    return _stepped(frames, truth, health)
+
+
+def _stepped(frames: list[tuple[Detections, StepReport]], truth: Truth, health: Health) -> int:
+    """The frames mapped, with their steps, in the truth and the health; how many."""
+    for frame, step in frames:
+        truth.saw((d.truth_id for d in frame.objects), step.object_ids)
+        health.step(step)
+    return len(frames)
 
 
 def _snapshot(world: WorldModel, result: RunResult) -> MapSnapshot | None:
@@ -343,6 +359,7 @@ def _score(result: RunResult, final_ids: np.ndarray, truth: Truth) -> dict[str, 
             truth.objects,
             truth.trajectories(),
             min_plant_distance=truth.min_plant_distance,
+            align=result.align,
         )
         if len(truth.detection_objects):
             metrics["association"] = association_counts(*truth.association_arrays(final_ids))

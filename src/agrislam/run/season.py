@@ -12,36 +12,18 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Iterable, Iterator
-from dataclasses import dataclass, field
 
 import numpy as np
 
-from agrislam.config import AgrislamConfig, FieldSchema
+from agrislam.config import AgrislamConfig
 from agrislam.geometry import se2
-from agrislam.records import Detections, DiscreteMeasurement, Meta, Odometry, Record, RobotStart
+from agrislam.records import Detections, Meta, Odometry, Record
 from agrislam.season.changes import Changes, ViewArea, find_changes
+from agrislam.season.first_frames import Check, FirstFrames, compatibility
 from agrislam.season.prior_map import PriorMap
-from agrislam.season.relocalise import Fix, Relocaliser, cluster, detection_spread
+from agrislam.season.relocalise import Fix, Relocaliser
 from agrislam.snapshot import STATUS_ACTIVE, STATUS_GONE
 from agrislam.world import WorldModel
-
-# m, m, rad: what dead reckoning may have drifted between the start and the frames of the
-# fix; the saved plants seen again then hold the trajectory
-START_SIGMA_FLOOR = np.array([0.1, 0.1, 0.03])
-
-
-@dataclass
-class _Frames:
-    """One robot's first frames by dead reckoning: detection positions and attributes."""
-
-    pose: np.ndarray = field(default_factory=lambda: np.zeros(3))
-    xy: list[np.ndarray] = field(default_factory=list)
-    t: list[float] = field(default_factory=list)  # time of each detection
-    dists: dict[str, list[np.ndarray]] = field(default_factory=dict)
-    t0: float | None = None
-    last_try: float = -np.inf
-    fix: Fix | None = None  # this robot's own fix, once localised
-    after: float | None = None  # s of driving until it
 
 
 class SeasonRun:
@@ -54,7 +36,7 @@ class SeasonRun:
         self.fix: Fix | None = None  # the first robot's latest try
         self.tries: list[tuple[float, str]] = []  # (s driven, outcome) of its every try
         self.localised_after: float | None = None  # s of driving until its fix
-        self.robots: dict[str, _Frames] = {}  # every robot's first frames and fix
+        self.robots: dict[str, FirstFrames] = {}  # every robot's first frames and fix
         self._first: str | None = None  # the first robot to detect anything
         self.merged = False
         self.start_check: str | None = None
@@ -80,13 +62,10 @@ class SeasonRun:
                 self._keep_robot_frame(rec)
             if not isinstance(rec, (Odometry, Detections)):
                 continue
-            robot = frames.setdefault(rec.robot, _Frames())
-            if robot.t0 is None:
-                robot.t0 = rec.t
-            if isinstance(rec, Odometry) and rec.delta is not None:
-                robot.pose = se2.compose(robot.pose, rec.delta)
-            elif isinstance(rec, Detections) and robot.fix is None:
-                self._place(robot, rec)
+            robot = frames.setdefault(rec.robot, FirstFrames())
+            if isinstance(rec, Odometry) or robot.fix is None:
+                robot.add(rec, self.prior.schema)
+            if isinstance(rec, Detections) and robot.fix is None:
                 self._try(rec.robot, robot, rec.t, meta)
             done = self._released(rec.t, meta, world)
             if done is not None:
@@ -101,32 +80,6 @@ class SeasonRun:
             self.tries.append((np.nan, self.fix.reason if self.fix else "no frames"))
             yield meta if meta is not None else Meta()
         yield from held
-
-    def _place(self, robot: _Frames, frame: Detections) -> None:
-        robot.t.extend([frame.t] * len(frame.objects))
-        for det in frame.objects:
-            robot.xy.append(
-                se2.to_map_frame(robot.pose, det.position()[None], np.eye(2)[None])[0][0]
-            )
-            for name, dist in self._distributions(det.attributes).items():
-                robot.dists.setdefault(name, []).append(dist)
-
-    def _distributions(self, attributes) -> dict[str, np.ndarray]:
-        """Each discrete measurement as the distribution of Assumption 1 (p on the value,
-        the rest spread uniformly)."""
-        schema: FieldSchema | None = self.prior.schema
-        out = {}
-        if schema is None:
-            return out
-        for name, spec in schema.discrete.items():
-            m = attributes.get(name)
-            n = len(spec.values)
-            dist = np.full(n, 1.0 / n)
-            if isinstance(m, DiscreteMeasurement) and m.value in spec.values and m.p >= 1.0 / n:
-                dist = np.full(n, (1.0 - m.p) / max(n - 1, 1))
-                dist[spec.values.index(m.value)] = m.p
-            out[name] = dist
-        return out
 
     def _released(self, t: float, meta: Meta | None, world: WorldModel) -> Meta | None:
         """The meta to release the records with: the fixed one when the first robot and
@@ -146,38 +99,35 @@ class SeasonRun:
         ]
         return None if waiting else self._start(meta, world)
 
-    def _try(self, name: str, robot: _Frames, t: float, meta: Meta | None) -> None:
+    def _try(self, name: str, robot: FirstFrames, t: float, meta: Meta | None) -> None:
         """One registration of the robot's latest first frames (every attempt_every_s)."""
-        driven = t - robot.t0
-        if driven - robot.last_try < self.cfg.attempt_every_s:
+        if not robot.due(t, self.cfg.attempt_every_s):
             return
-        robot.last_try = driven
-        recent = np.asarray(robot.t) >= t - self.cfg.window_s
-        xy = np.array(robot.xy).reshape(-1, 2)[recent]
-        local, counts, label = cluster(xy, self.cfg.cluster_radius)
-        if robot.dists and len(self.prior.ids):
-            start = meta.survey_start if meta is not None and meta.survey_start else 0.0
-            # a map without history has no time: its beliefs are as of this survey's start,
-            # as the world takes them
-            saved = self.prior.t_abs - start if np.isfinite(self.prior.t_abs) else 0.0
-            world_beliefs = self.prior.belief_table(self.config.advanced.semantics, saved)
-            means = {
-                name: _cluster_mean(np.array(d)[recent], label, len(local))
-                for name, d in robot.dists.items()
-            }
-            check = self.prior.compatibility(world_beliefs, t)
-            ids = self.prior.ids
-            self.relocaliser.compatible = lambda rows, j: check(
-                {n: m[rows] for n, m in means.items()}, ids[j]
-            )
-        spread = detection_spread(xy, local, counts, label)
-        fix = self.relocaliser.locate(local, counts, spread)
+        fix = robot.locate(
+            self.relocaliser, self.cfg, t - self.cfg.window_s, check=self._check(robot, t, meta)
+        )
         if fix.localised:
-            robot.fix, robot.after = fix, driven
+            robot.localised(fix, t)
         if name == self._first:
             self.fix = fix
-            self.tries.append((driven, fix.reason))
+            self.tries.append((robot.last_try, fix.reason))
             self.localised_after = robot.after
+
+    def _check(self, robot: FirstFrames, t: float, meta: Meta | None) -> Check | None:
+        """Which saved plants a first-frames plant may be, by its attributes (None: any)."""
+        if not (robot.dists and len(self.prior.ids)):
+            return None
+        start = meta.survey_start if meta is not None and meta.survey_start else 0.0
+        # a map without history has no time: its beliefs are as of this survey's start, as
+        # the world takes them
+        saved = self.prior.t_abs - start if np.isfinite(self.prior.t_abs) else 0.0
+        beliefs = self.prior.belief_table(self.config.advanced.semantics, saved)
+        compatible, ids = compatibility(beliefs, t), self.prior.ids
+
+        def check(local: dict[str, np.ndarray], rows: np.ndarray) -> np.ndarray:
+            return compatible(local, ids[rows])
+
+        return check
 
     def _start(self, meta: Meta | None, world: WorldModel) -> Meta:
         """The meta with each localised robot's start pose from its fix, the prior given to
@@ -190,9 +140,7 @@ class SeasonRun:
                 continue
             start, given = robot.fix.transform, meta.robots.get(name)
             if given is None:
-                # the fix's own uncertainty, widened and floored: a start prior, not a clamp
-                sigma = np.maximum(3.0 * np.sqrt(np.diag(robot.fix.cov)), START_SIGMA_FLOOR)
-                robots[name] = RobotStart(pose=start, sigma=sigma)
+                robots[name] = robot.start()
                 continue
             d = np.linalg.norm(given.pose[:2] - start[:2])
             turn = abs(se2.wrap_angle(given.pose[2] - start[2]))
@@ -257,10 +205,3 @@ class SeasonRun:
             "start_check": self.start_check,
             "changes": None if self.changes is None else self.changes.as_dict(),
         }
-
-
-def _cluster_mean(values: np.ndarray, label: np.ndarray, k: int) -> np.ndarray:
-    """(k, n) mean of the per-detection rows `values` (m, n) over each cluster."""
-    out = np.zeros((k, values.shape[1]))
-    np.add.at(out, label[: len(values)], values)
-    return out / np.maximum(np.bincount(label[: len(values)], minlength=k), 1)[:, None]

@@ -70,17 +70,3 @@ class PriorMap:
             state[f"mean/{name}"][self.ids] = mean
             state[f"var/{name}"][self.ids] = var
         return BeliefTable.from_state(self.schema, config, state)
-
-    def compatibility(self, beliefs: BeliefTable, t: float, floor: float = 0.5):
-        """`compatible(p_local, map_ids)`: whether measured attribute distributions (dict
-        name -> (m, n)) agree with the saved plants' beliefs at t: for every discrete
-        attribute, sum_k p_local p_map >= floor / n (half of what two uniform ones give)."""
-
-        def compatible(local: dict[str, np.ndarray], map_ids: np.ndarray) -> np.ndarray:
-            ok = np.ones(len(map_ids), dtype=bool)
-            for name, p_local in local.items():
-                p_map = beliefs.probabilities(name, map_ids, t)
-                ok &= (p_local * p_map).sum(axis=1) >= floor / p_map.shape[1]
-            return ok
-
-        return compatible

@@ -174,7 +174,8 @@ class Relocaliser:
         if dof <= 0 or np.sum(d_best[inside] ** 2 / np.maximum(var, 1e-12)) > chi2.ppf(
             FIT_CONFIDENCE, dof
         ):
-            rms, expected = _rms(d_best, cfg.inlier_radius), np.sqrt(2.0 * np.mean(var))
+            rms = _rms(d_best, cfg.inlier_radius)
+            expected = np.sqrt(2.0 * np.mean(var)) if len(var) else np.nan  # nan: no match
             why = f"the best place fits only to {rms:.3f} m ({expected:.3f} m expected)"
             return Fix(None, f"not localised yet: {why}", **fix)
         if inliers < cfg.min_landmarks or inliers < cfg.min_inlier_fraction * n:

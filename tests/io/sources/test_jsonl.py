@@ -347,6 +347,24 @@ def test_time_is_per_robot():
     assert len(recs) == 3
 
 
+def test_detections_read_before_the_first_odometry_wait_for_it():
+    """A robot's time line starts at its first odometry: detections read before it and
+    stamped at or before it go ahead of it (the pose sync places or reports them); one
+    stamped after it (a frame copied ahead of the log) is its own bad line, and the odometry
+    after it is not taken for time going backwards."""
+    ahead = [_with(DET, t=0.5), _with(DET, t=3.0), _with(DET, t=1.0)]
+    rest = [ODOM, _with(ODOM, t=2.0), _with(DET, t=3.0), _with(ODOM, t=3.0)]
+    recs, report = _read([META, *ahead, *rest], strict=False)
+    assert dict(report.skipped) == {"before_odometry": 1}
+    (bad,) = report.bad_lines
+    assert bad.line == 3 and "read before the robot's first odometry, at t = 1.0" in bad.message
+    kinds = [(type(r).__name__[0], r.t) for r in recs[1:]]
+    assert kinds == [("D", 0.5), ("D", 1.0), ("O", 1.0), ("O", 2.0), ("D", 3.0), ("O", 3.0)]
+    with pytest.raises(LogError) as err:
+        _read([META, *ahead, *rest])
+    assert (err.value.line, err.value.reason) == (3, "before_odometry")
+
+
 def _records():
     schema = FieldSchema.model_validate(SCHEMA)
     return [

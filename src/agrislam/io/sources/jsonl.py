@@ -26,6 +26,7 @@ from agrislam.config import (
 from agrislam.config.limits import first_error
 from agrislam.io.sources.clock import Rejected, RobotClocks
 from agrislam.io.sources.compressed import GzipText, check_gzip
+from agrislam.io.sources.early_detections import EarlyDetections
 from agrislam.io.sources.log_report import LogError, ReadReport
 from agrislam.io.sources.odometry_gaps import OdometryGaps
 from agrislam.io.sources.validate import REASONS, BadRecordError, check_record, within
@@ -424,6 +425,7 @@ class LogReader:
         (a .gz file cut short or damaged) is reported as bad input after the lines before it."""
         parser = _Parser(self.schema, self.limits)
         clocks: RobotClocks[tuple[int, Record]] = RobotClocks(self.limits)
+        early: EarlyDetections[tuple[int, Record]] = EarlyDetections()
         self._gaps = OdometryGaps(self.default_odom_cov)
         report, first, broken_line = self.report, True, None
         for n, raw in _lines(f, self.limits.max_line_bytes):
@@ -452,7 +454,20 @@ class LogReader:
             if isinstance(rec, (Meta, TruthObject)):
                 yield from self._yield([(n, rec)])
                 continue
-            released, rejected = clocks.offer(rec.robot, rec.t, (n, rec))
+            if isinstance(rec, Detections) and early.waits(rec.robot):
+                early.hold(rec.robot, rec.t, (n, rec))
+                continue
+            timed = [(n, rec)]
+            if isinstance(rec, Odometry) and early.waits(rec.robot):
+                ahead, late = early.odometry(rec.robot, rec.t)
+                self._reject(late)
+                timed = ahead + timed
+            for item in timed:
+                released, rejected = clocks.offer(rec.robot, item[1].t, item)
+                self._reject(rejected)
+                yield from self._yield(released)
+        for item in early.finish():  # robots without odometry: their frames unplaced
+            released, rejected = clocks.offer(item[1].robot, item[1].t, item)
             self._reject(rejected)
             yield from self._yield(released)
         self._reject(clocks.finish())

@@ -50,6 +50,7 @@ REASONS = {
     "not_in_schema": "an attribute or value not in the schema",
     "time_backwards": "time goes backwards for this robot",
     "time_jump": "a time spike: far ahead of its robot's clock, which did not follow it",
+    "before_odometry": "detections read before their robot's first odometry, stamped after it",
     "meta_not_first": "a meta record after other records",
     "unsupported_version": "a log format version this reader does not know",
     "bad_schema": "the meta schema is invalid",
