@@ -143,6 +143,18 @@ def test_one_bad_odometry_record_costs_that_record(lines, clean, row, k, change,
     _same_map(got, clean, BRIDGED)
 
 
+@pytest.mark.parametrize("strict", [True, False])
+def test_a_re_sent_odometry_delta_is_dropped_and_counted(lines, clean, strict):
+    """The same delta record twice (a re-sent message) would move the robot twice; it is
+    dropped and counted, in strict mode too, and the map is the clean log's."""
+    i = _index(lines, "odom", 20)
+    reader = read_log(io.BytesIO(_log([*lines[: i + 1], *lines[i:]])), strict=strict)
+    result = run_survey(reader, WorldModel(AgrislamConfig()))
+    _one_skipped(reader.report, i + 2, "repeated")
+    assert result.snapshot is not None
+    _same_map(result.snapshot, clean)
+
+
 DETECTION_ROWS = [
     ("a string in xy", _objects(["0.2", 1.0]), "bad_value", "objects[0]: 'xy' entry"),
     ("xy of 1e150", _objects([1e150, 0.0]), "out_of_bounds", "objects[0]: 'xy'[0]"),
