@@ -18,6 +18,7 @@ from agrislam.association.returning import Returns
 from agrislam.backend import GraphBackend, make_backend
 from agrislam.config import FieldSchema, Settings
 from agrislam.estimation.estimators import Estimators
+from agrislam.frontend.doubt import MotionDoubt
 from agrislam.frontend.frontend import FrontEnd
 from agrislam.maintenance.maintainer import Maintainer
 from agrislam.maintenance.merger import Merger
@@ -64,8 +65,9 @@ def build_stages(
         first_own = int(prior[0].ids.max(initial=-1)) + 1  # the saved plants come first
     estimators = Estimators(settings, map_state, backend)
     association, landmarks = settings.association, settings.landmarks
+    doubt = MotionDoubt(map_state, issues)
     frontend = FrontEnd(
-        settings.sensor, schema, association.innovation_gate, backend, estimators, issues
+        settings.sensor, schema, association.innovation_gate, backend, estimators, doubt, issues
     )
     frontend.use_starts(starts)
     # without a field prior's plant spacing or rows, the association's safeguards are on

@@ -231,7 +231,7 @@ class WorldModel:
         with timer("check"):
             detections = s.frontend.checked(frame)
         with timer("add_pose"):
-            s.frontend.add_pose(robot, t)
+            s.frontend.add_pose(robot, t, detections)
         with timer("place"):
             placed = s.frontend.place(robot, detections)
         with timer("associate"):  # sec. 2.4

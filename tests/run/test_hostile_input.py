@@ -143,6 +143,45 @@ def test_one_bad_odometry_record_costs_that_record(lines, clean, row, k, change,
     _same_map(got, clean, BRIDGED)
 
 
+@pytest.mark.parametrize("strict", [True, False])
+def test_a_re_sent_odometry_delta_is_dropped_and_counted(lines, clean, strict):
+    """The same delta record twice (a re-sent message) would move the robot twice; it is
+    dropped and counted, in strict mode too, and the map is the clean log's."""
+    i = _index(lines, "odom", 20)
+    reader = read_log(io.BytesIO(_log([*lines[: i + 1], *lines[i:]])), strict=strict)
+    result = run_survey(reader, WorldModel(AgrislamConfig()))
+    _one_skipped(reader.report, i + 2, "repeated")
+    assert result.snapshot is not None
+    _same_map(result.snapshot, clean)
+
+
+DOUBTED = "odometry motions doubted: far beyond the robot's motion so far (frontend/doubt.py)"
+
+
+@pytest.mark.parametrize(
+    ("row", "change"),
+    [
+        ("a jump of 2 m", [2.0, 0.0, 0.0]),
+        ("a jump of 5 km", [5000.0, 0.0, 0.0]),
+        ("a spin of 1,000 rad", [0.0, 0.0, 1000.0]),
+    ],
+)
+def test_one_odometry_delta_far_beyond_the_robots_motion_is_doubted(lines, clean, row, change):
+    """A delta within sensor.limits but far beyond anything the robot did (a corrupted
+    message) is doubted, the next frame's detections deciding; the map is the clean
+    log's within what a guessed motion costs, and the doubt is counted."""
+    i = _index(lines, "odom", 45)  # in the second row: its next frame sees mapped plants
+
+    def jumped(record: dict[str, Any]) -> None:
+        record["delta"] = [a + b for a, b in zip(record["delta"], change, strict=True)]
+
+    reader = read_log(io.BytesIO(_edit(lines, i, jumped)), strict=True)
+    result = run_survey(reader, WorldModel(AgrislamConfig()))
+    assert result.issues == {DOUBTED: 1}, row
+    assert result.snapshot is not None
+    _same_map(result.snapshot, clean, BRIDGED)
+
+
 DETECTION_ROWS = [
     ("a string in xy", _objects(["0.2", 1.0]), "bad_value", "objects[0]: 'xy' entry"),
     ("xy of 1e150", _objects([1e150, 0.0]), "out_of_bounds", "objects[0]: 'xy'[0]"),

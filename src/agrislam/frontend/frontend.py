@@ -1,5 +1,7 @@
 """The front end (DESIGN steps 2-3): records into what the graph and the association take.
-Each robot's odometry is composed into its next pose node; GNSS fixes wait for that node;
+Each robot's odometry is composed into its next pose node, a motion far beyond the robot's
+own held in doubt until its next frame judges it (frontend/doubt.py); GNSS fixes wait for
+that node;
 a frame's detections are checked against the schema and placed in the map frame with their
 covariances (sec. 2.3), and once associated become measurement factors (sec. 2.6)."""
 
@@ -12,6 +14,7 @@ import numpy as np
 from agrislam.backend import GraphBackend
 from agrislam.config import FieldSchema, SensorDefaults
 from agrislam.estimation.estimators import Estimators
+from agrislam.frontend.doubt import MotionDoubt
 from agrislam.frontend.sensor_model import SensorModel
 from agrislam.geometry import se2
 from agrislam.geometry.odometry import OdometryChain
@@ -30,11 +33,13 @@ class FrontEnd:
         innovation_gate: bool,
         backend: GraphBackend,
         estimators: Estimators,
+        doubt: MotionDoubt,
         issues: Counter[str],
     ) -> None:
         self.sensor = SensorModel(sensor)
         self.schema, self.innovation_gate = schema, innovation_gate
         self.backend, self.estimators, self.issues = backend, estimators, issues
+        self.doubt = doubt
         self.robots: dict[str, OdometryChain] = {}
 
     def use_starts(self, starts: dict[str, RobotStart]) -> None:
@@ -47,11 +52,20 @@ class FrontEnd:
 
     # ------------------------------------------------------------------ records in
     def add_odometry(self, odom: Odometry) -> None:
-        """Compose the motion into the robot's pending increment (DESIGN step 2)."""
+        """Compose the motion into the robot's pending increment (DESIGN step 2); one far
+        beyond the robot's own is held in doubt, with the motion that would replace it
+        (with those held before it: a glitch of a `pose` record is two suspects)."""
         chain = self.chain(odom.robot, odom.t)
         delta = chain.increment(odom.pose, odom.delta)
-        if delta is not None:
-            chain.move(odom.t, delta, self.sensor.odometry_covariance(odom.cov))
+        if delta is None:
+            return
+        cov = self.sensor.odometry_covariance(odom.cov)
+        suspect = self.doubt.check(odom.robot, delta, odom.t - chain.time, cov)
+        if suspect is None:
+            chain.move(odom.t, delta, cov)
+            return
+        self.doubt.hold(odom.robot, suspect)
+        chain.move(odom.t, delta, cov, suspect.instead)
 
     def add_gnss(self, fix: GnssFix, anchor: Anchor | None) -> Anchor | None:
         """Keep a fix for the robot's next pose node; returns the survey's anchor (the first
@@ -81,10 +95,19 @@ class FrontEnd:
         return np.stack([self.sensor.detection_covariance(d) for d in detections])
 
     # ---------------------------------------------------------------- the frame
-    def add_pose(self, robot: str, t: float) -> None:
-        """The robot's pose node at t with its odometry factor, and the GNSS fixes that
-        waited for it as factors on it (gated on the previous pose's covariance)."""
+    def add_pose(self, robot: str, t: float, detections: list[Detection]) -> None:
+        """The robot's pose node at t with its odometry factor, motions in doubt judged by
+        the frame's `detections` first (if they can tell), and the GNSS fixes that waited
+        for it as factors on it (gated on the previous pose's covariance)."""
         gnss, chain = self.estimators.gnss, self.chain(robot, t)
+        if (versions := chain.in_doubt) is not None:
+            fit = None
+            if detections:
+                xy = np.stack([d.position() for d in detections])
+                cov = self.estimators.noise.scale.detection(self.detection_covariances(detections))
+                fit = self.doubt.fit(robot, self.backend.current_pose(robot), versions, xy, cov)
+            if (doubted := self.doubt.judge(robot, fit, looked=bool(detections))) is not None:
+                chain.settle(doubted)
         pose_cov = None
         if gnss.pending.get(robot) and gnss.cfg.gate_chi2 > 0.0:
             pose_cov = self.backend.current_pose_covariance(robot)

@@ -343,7 +343,8 @@ def test_configured_schema_validates_when_meta_has_none():
 
 
 def test_time_is_per_robot():
-    recs, _ = _read([_with(ODOM, t=5.0), _with(ODOM, t=1.0, robot="r2"), _with(ODOM, t=5.0)])
+    second = _with(ODOM, t=5.0, delta=[0.2, 0.0, 0.0])  # at the same t: the spec allows it
+    recs, _ = _read([_with(ODOM, t=5.0), _with(ODOM, t=1.0, robot="r2"), second])
     assert len(recs) == 3
 
 
@@ -363,6 +364,36 @@ def test_detections_read_before_the_first_odometry_wait_for_it():
     with pytest.raises(LogError) as err:
         _read([META, *ahead, *rest])
     assert (err.value.line, err.value.reason) == (3, "before_odometry")
+
+
+POSE = _with(ODOM, delta=..., pose=[3.0, 0.1, 0.01])
+
+
+@pytest.mark.parametrize("strict", [True, False])
+@pytest.mark.parametrize("odometry", [ODOM, POSE], ids=["delta", "pose"])
+def test_a_re_sent_record_is_dropped_and_counted_in_either_mode(strict, odometry):
+    """The same record again (same robot, type, t and content) is a re-sent message: a
+    repeated delta would move the robot twice. Dropping it loses nothing, so strict mode
+    drops it too; another robot's record in between changes nothing."""
+    moved = _with(odometry, t=2.0)
+    lines = [META, odometry, DET, _with(odometry, robot="r2"), odometry, DET, moved, moved]
+    recs, report = _read(lines, strict=strict)
+    assert [(type(r).__name__, r.robot, r.t) for r in recs[1:]] == [
+        ("Odometry", "r1", 1.0),
+        ("Detections", "r1", 1.0),
+        ("Odometry", "r2", 1.0),
+        ("Odometry", "r1", 2.0),
+    ]
+    assert dict(report.skipped) == {"repeated": 3}
+    assert report.skipped_table()["line"] == [5, 6, 8]
+    assert "robot 'r1': the odom record of line 2 again (t = 1.0)" in str(report.examples[0])
+
+
+def test_the_same_t_with_another_content_is_no_repeat():
+    """Two deltas at one t are two motions (stamps rounded); a repeat is the whole record."""
+    lines = [META, ODOM, _with(ODOM, delta=[0.3, 0.0, 0.0]), ODOM, _with(ODOM, cov=...)]
+    recs, report = _read(lines)
+    assert len(recs) == 5 and not report.skipped
 
 
 def _records():

@@ -374,7 +374,8 @@ class LogReader:
 
     strict: raise `LogError` at the first bad line (records before it have been yielded);
     otherwise skip bad lines and count them in `report` (that of the latest pass). A bad
-    meta line raises in either mode. `schema` validates attributes when the log's meta has
+    meta line raises in either mode; a repeated record (`_Repeats`) is skipped and counted
+    in either mode: dropping it loses nothing. `schema` validates attributes when the log's meta has
     none; `limits` bounds every value (default: `InputLimits()`). The motion of a rejected
     odometry record is kept (`sources.odometry_gaps`), `default_odom_cov` the diagonal of
     a record without a covariance (the run's `sensor.odom_cov_diag`)."""
@@ -427,6 +428,7 @@ class LogReader:
         clocks: RobotClocks[tuple[int, Record]] = RobotClocks(self.limits)
         early: EarlyDetections[tuple[int, Record]] = EarlyDetections()
         self._gaps = OdometryGaps(self.default_odom_cov)
+        repeats = _Repeats()
         report, first, broken_line = self.report, True, None
         for n, raw in _lines(f, self.limits.max_line_bytes):
             report.lines = n
@@ -453,6 +455,13 @@ class LogReader:
                 continue
             if isinstance(rec, (Meta, TruthObject)):
                 yield from self._yield([(n, rec)])
+                continue
+            if (earlier := repeats.of(n, obj)) is not None:
+                message = (
+                    f"robot {rec.robot!r}: the {obj['type']} record of line {earlier} again "
+                    f"(t = {rec.t}): a re-sent message, dropped"
+                )
+                report.add(LogError(n, "repeated", message, report.source))
                 continue
             if isinstance(rec, Detections) and early.waits(rec.robot):
                 early.hold(rec.robot, rec.t, (n, rec))
@@ -534,6 +543,24 @@ class LogReader:
         if self.strict or err.fatal:
             raise err
         self.report.add(err)
+
+
+class _Repeats:
+    """Each robot's latest record of each type, to tell a re-sent message: the same record
+    (same t, same content) again. A repeated odometry `delta` would move the robot twice;
+    a repeated frame or fix would count its evidence twice."""
+
+    def __init__(self) -> None:
+        self.latest: dict[tuple[str, str], tuple[int, dict]] = {}
+
+    def of(self, line: int, obj: dict) -> int | None:
+        """The line that `obj` (a timed record's JSON, read from `line`) repeats, or None."""
+        key = (obj["robot"], obj["type"])
+        before = self.latest.get(key)
+        if before is not None and before[1]["t"] == obj["t"] and before[1] == obj:
+            return before[0]
+        self.latest[key] = (line, obj)
+        return None
 
 
 def read_log(

@@ -15,13 +15,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from agrislam.geometry.odometry import guessed_motion_covariance
 from agrislam.geometry.se2 import compose_increments, wrap_angle
 from agrislam.io.sources.sync import interpolate_increment
 from agrislam.io.sources.validate import BadRecordError
 from agrislam.records import Odometry
-
-BRIDGE_SIGMA = 0.5  # sigma of a bridged motion, as a fraction of its size
-MIN_BRIDGE_SIGMA = (0.01, 0.01, 0.01)  # m, m, rad: the least a bridged motion is widened by
 
 
 @dataclass
@@ -96,9 +94,7 @@ class OdometryGaps:
         whole = interpolate_increment(rec.delta, f)
         bridged = whole - rec.delta  # about the motion of the lost interval
         bridged[2] = wrap_angle(bridged[2])
-        sigma = np.maximum(BRIDGE_SIGMA * np.abs(bridged), MIN_BRIDGE_SIGMA)
-        sigma[:2] = max(sigma[0], sigma[1], BRIDGE_SIGMA * float(np.hypot(*bridged[:2])))
-        cov = self._cov(rec) * f + np.diag(sigma**2)
+        cov = self._cov(rec) * f + guessed_motion_covariance(bridged)
         return dataclasses.replace(rec, delta=whole, cov=cov)
 
     def _cov(self, rec: Odometry) -> np.ndarray:

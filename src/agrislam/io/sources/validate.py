@@ -51,6 +51,7 @@ REASONS = {
     "time_backwards": "time goes backwards for this robot",
     "time_jump": "a time spike: far ahead of its robot's clock, which did not follow it",
     "before_odometry": "detections read before their robot's first odometry, stamped after it",
+    "repeated": "the robot's previous record of its type again, same t: a re-sent message",
     "meta_not_first": "a meta record after other records",
     "unsupported_version": "a log format version this reader does not know",
     "bad_schema": "the meta schema is invalid",
