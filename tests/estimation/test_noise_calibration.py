@@ -12,6 +12,7 @@ from agrislam.config import AgrislamConfig, CalibrationConfig
 from agrislam.estimation.noise_calibration import (
     ANCHOR_SPAN,
     FISHER_ITERATIONS,
+    MIN_SPREAD_PAIRS,
     PAIRS_A_CALL,
     Anchors,
     NoiseCalibration,
@@ -225,6 +226,30 @@ def test_an_anchor_the_robot_drifted_far_from_is_renewed_without_a_pair():
     assert np.all(drift > ANCHOR_SPAN * 0.04) and not ripe.any()
     d, _, ripe = sighting(6.2, 0.105)  # drift ~0.2 since the sighting at 6.0
     assert ripe.all() and np.allclose(d[:, 0], 0.2)
+
+
+def _sighted_again(cal: NoiseCalibration, rng: np.random.Generator, sigma: float, n: int) -> None:
+    """n objects 5 m apart seen again by robot 0 a frame later (no drift), each sighting
+    scattered by `sigma`, each claiming a sigma of a micrometre."""
+    truth = np.column_stack([np.arange(n) * 5.0, np.zeros(n)])
+    cov, drift = np.tile(1e-12 * np.eye(2), (n, 1, 1)), np.zeros((3, 3, 3))
+    then, now = (truth + rng.normal(0.0, sigma, (n, 2)) for _ in range(2))
+    dist = np.full((n, n), 5.0)
+    np.fill_diagonal(dist, 0.01)
+    last = (np.ones(n, dtype=bool), then, cov, np.zeros((n, 3, 3, 3)))
+    cal.observe((now, cov, drift), 0, np.arange(n), last, np.eye(n, dtype=bool), dist)
+
+
+def test_a_detection_far_surer_than_its_re_sightings_is_raised_to_their_spread():
+    """The spread of re-sightings a frame apart is a floor from the first pairs on (the
+    configured detection noise before them): a covariance claiming a sigma ten times
+    below it is raised to it, whatever the variance factor; a fair one is left alone."""
+    cal = NoiseCalibration(CalibrationConfig(), detection_sigma=0.03)
+    covs = np.stack([1e-12 * np.eye(2), np.diag([0.01, 0.0025])])
+    np.testing.assert_allclose(cal.detection_floor(covs), [0.03**2, 0.0])
+    _sighted_again(cal, np.random.default_rng(0), 0.05, MIN_SPREAD_PAIRS * 4)
+    floor = cal.detection_floor(covs)
+    assert floor[1] == 0.0 and floor[0] == pytest.approx(0.05**2, rel=0.3)
 
 
 def test_victoria_park_finds_its_heading_noise_without_a_config():

@@ -10,7 +10,10 @@ import pytest
 
 from agrislam.config import SemanticsConfig
 from agrislam.frontend.doubt import (
+    CONTRADICTED,
     DOUBTED,
+    FLOORED,
+    JITTER_EVERY,
     MAX_WAIT,
     MOVES,
     MotionDoubt,
@@ -70,6 +73,25 @@ def test_the_record_after_a_glitch_is_no_suspect(doubt):
     _driven(doubt)
     assert doubt.check("r", STEP + np.array([0.0, 0.0, 1.0]), 0.5, COV) is not None
     assert doubt.check("r", STEP, 0.5, COV) is None
+
+
+def test_an_odometry_covariance_far_below_the_robots_jitter_is_raised_to_it(doubt):
+    """A robot whose increments differ by millimetres from one to the next, each claiming
+    a sigma of 1e-8 m: once its jitter is known, a record's translation and heading are
+    raised to the noise that jitter means; a record within CONTRADICTED of it is not."""
+    sure = np.diag([1e-16, 1e-16, 1e-16])
+    assert doubt.covariance("r", sure, 0.5) is sure  # no jitter known yet
+    rng = np.random.default_rng(1)
+    for _ in range(2 * JITTER_EVERY):
+        doubt.check("r", STEP + rng.normal(0.0, [4e-3, 4e-3, 5e-4]), 0.5, sure)
+    raised = doubt.covariance("r", sure, 0.5)
+    assert doubt.issues == {FLOORED: 1}
+    sigmas = np.sqrt(np.diag(raised))
+    np.testing.assert_allclose(sigmas, [4e-3, 4e-3, 5e-4], rtol=0.5)
+    fair = np.diag((sigmas / CONTRADICTED * 2.0) ** 2)
+    assert doubt.covariance("r", fair, 0.5) is fair
+    cut = fair / 100.0  # a record cut at a frame's time: a share of the covariance
+    assert doubt.covariance("r", cut, 0.5 / 100.0) is cut
 
 
 def _frame(doubt: MotionDoubt, pose: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

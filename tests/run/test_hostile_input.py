@@ -19,6 +19,8 @@ import numpy as np
 import pytest
 
 from agrislam.config import AgrislamConfig
+from agrislam.estimation import noise_calibration
+from agrislam.frontend import doubt, sensor_model
 from agrislam.io.sinks.jsonl import record_to_json
 from agrislam.io.sources.jsonl import LogError, read_log
 from agrislam.run.pipeline import RunError, run_survey
@@ -155,9 +157,6 @@ def test_a_re_sent_odometry_delta_is_dropped_and_counted(lines, clean, strict):
     _same_map(result.snapshot, clean)
 
 
-DOUBTED = "odometry motions doubted: far beyond the robot's motion so far (frontend/doubt.py)"
-
-
 @pytest.mark.parametrize(
     ("row", "change"),
     [
@@ -177,9 +176,47 @@ def test_one_odometry_delta_far_beyond_the_robots_motion_is_doubted(lines, clean
 
     reader = read_log(io.BytesIO(_edit(lines, i, jumped)), strict=True)
     result = run_survey(reader, WorldModel(AgrislamConfig()))
-    assert result.issues == {DOUBTED: 1}, row
+    assert result.issues == {doubt.DOUBTED: 1}, row
     assert result.snapshot is not None
     _same_map(result.snapshot, clean, BRIDGED)
+
+
+def _near_clean(got: MapSnapshot, clean: MapSnapshot, tolerance: float) -> None:
+    """As many objects as the clean map, each clean one with one within `tolerance` m."""
+    assert len(got.objects) == len(clean.objects)
+    apart = np.linalg.norm(clean.objects.xy[:, None] - got.objects.xy[None], axis=2)
+    assert apart.min(axis=1).max() < tolerance
+
+
+@pytest.mark.parametrize(
+    ("kind", "variance", "raised"),
+    [
+        ("detections", 1e-6, {noise_calibration.FLOORED}),
+        ("detections", 1e-12, {noise_calibration.FLOORED}),
+        ("detections", 1e-16, {noise_calibration.FLOORED}),
+        ("odom", 1e-16, {sensor_model.RAISED, doubt.FLOORED}),
+    ],
+)
+def test_covariances_far_too_sure_of_themselves_are_raised(lines, clean, kind, variance, raised):
+    """Every covariance of a kind a diagonal of 1e-6 to 1e-16 (1e-16: the least the reader
+    takes): raised to what the data show (the spread of a plant's re-sightings, the
+    robot's own jitter), never below the solver's least; counted, and the map is the
+    clean log's within a few centimetres (it was 0.2-0.5 m off, or 'indeterminate')."""
+
+    def sure(text: str) -> str:
+        record = json.loads(text)
+        if record["type"] == "odom" == kind:
+            record["cov"] = (np.eye(3) * variance).tolist()
+        elif record["type"] == "detections" == kind:
+            for obj in record["objects"]:
+                obj["cov"] = (np.eye(2) * variance).tolist()
+        return json.dumps(record)
+
+    reader = read_log(io.BytesIO(_log([sure(text) for text in lines])), strict=True)
+    result = run_survey(reader, WorldModel(AgrislamConfig()))
+    assert set(result.issues) == raised
+    assert result.snapshot is not None
+    _near_clean(result.snapshot, clean, BRIDGED)
 
 
 DETECTION_ROWS = [

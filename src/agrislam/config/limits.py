@@ -61,7 +61,8 @@ class InputLimits(StrictModel):
         1e-16,
         gt=0.0,
         description="smallest variance on a covariance's diagonal (a sigma of 1e-8 m or "
-        "rad): below it the information overflows the solver",
+        "rad): below it a number is no measurement; the mapper raises what it takes to "
+        "1e-12 at least, and to what the data show",
     )
     max_variance: float = Field(
         1e12,

@@ -26,7 +26,8 @@ class Estimators:
     def __init__(self, settings: Settings, map_state: MapState, backend: GraphBackend) -> None:
         """The estimators of a survey with `settings` over its map and back end."""
         sensor = settings.sensor
-        self.noise = NoiseCalibration(sensor.calibration)
+        sharpest = min(sensor.detection_sigma_lateral, sensor.detection_sigma_depth)
+        self.noise = NoiseCalibration(sensor.calibration, sharpest)
         self.depth_bias = DepthBiasEstimator(sensor.depth_bias)
         self.sensor = SensorCalibration(sensor.estimate_biases)
         self.spacing = PointSpacing(settings.association.d_inter)

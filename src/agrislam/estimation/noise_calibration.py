@@ -1,10 +1,19 @@
 """Noise that calibrates itself: the variance factors of the detection, odometry translation
 and heading noise, estimated online by Fisher scoring from pairs of sightings of one object
 in a robot's dead-reckoning frame, whose difference is detection noise twice plus the
-chain's drift between them (geometry/drift.py); outlying pairs are down-weighted by EM."""
+chain's drift between them (geometry/drift.py); outlying pairs are down-weighted by EM.
+
+A factor inflates a covariance at most 30 times and twice an estimate, from the 200th pair
+on: a detector that claims a sigma of a micrometre for a plant its re-sightings scatter by
+centimetres would map its first frames, and all after, too sure of itself. So the spread
+of a robot's re-sightings a frame apart (mostly detection noise twice) is a floor from the
+first pairs on: a detection claiming a sigma `CONTRADICTED` times below it is raised to it
+(`detection_floor`); before the first pairs, the configured detection noise stands for it
+(its first frames' factors stay in the graph: too sure, they bend the chain)."""
 
 from __future__ import annotations
 
+from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
@@ -18,6 +27,14 @@ PAIRS_A_CALL = 4096  # the pairs a call sums for an estimate under way (`Scoring
 MAX_STEP = 2.0  # the most one estimate changes a sigma factor by
 ANCHOR_SLOTS = 1 << 13  # objects a calibration keeps an anchor sighting of (`Anchors`)
 ANCHOR_SPAN = 10.0  # an anchor pairs while the drift since is 1 to this x the detection noise
+SPREAD_PAIRS = 256  # the latest pairs a frame apart the spread of re-sightings is taken over
+MIN_SPREAD_PAIRS = 30  # before as many, no floor
+CONTRADICTED = 10.0  # a detection claiming a sigma this many times below the spread is raised
+RAYLEIGH_MEDIAN = 1.1774 * np.sqrt(2.0)  # median distance of two sightings, in their sigma
+FLOORED = (
+    "detection covariances far below the spread of their re-sightings raised to it "
+    "(estimation/noise_calibration.py)"
+)
 
 
 @dataclass
@@ -151,8 +168,11 @@ class Anchors:
 class NoiseCalibration:
     """The running estimate of `NoiseScale` from pairs of sightings (module docstring)."""
 
-    def __init__(self, config: CalibrationConfig) -> None:
+    def __init__(self, config: CalibrationConfig, detection_sigma: float = 0.0) -> None:
+        """`detection_sigma`: the configured detection noise (its sharpest sigma, m), the
+        spread of re-sightings before they show it (`detection_floor`)."""
         self.config = config
+        self.detection_sigma = detection_sigma
         self.scale = NoiseScale.configured()
         # the latest `max_pairs` pairs, a ring: row n % max_pairs holds the n-th pair
         self._d = np.empty((config.max_pairs, 2))
@@ -164,6 +184,8 @@ class NoiseCalibration:
         self._scoring: Scoring | None = None  # an estimate under way
         self._anchors = Anchors(ANCHOR_SLOTS)
         self.anchor_pairs = 0  # pairs with an anchor sighting (`Anchors`)
+        self._spread: deque[float] = deque(maxlen=SPREAD_PAIRS)  # pairs a frame apart: |d|
+        self._spread_sigma: float | None = None  # their spread's sigma, None: to compute
 
     @property
     def enabled(self) -> bool:
@@ -201,7 +223,11 @@ class NoiseCalibration:
         known = known[j]
         seen = [column[j[known]] for column in last_seen]
         d, comps = pair_components(xy[known], cov[known], drift, *seen)
-        short = np.linalg.norm(d, axis=1) <= spacing[known]
+        apart = np.linalg.norm(d, axis=1)
+        short = apart <= spacing[known]
+        if short.any():
+            self._spread.extend(apart[short].tolist())
+            self._spread_sigma = None
         d_a, comps_a, ripe = self._anchors.pair(objects[j], robot, (xy, cov, drift), self.scale)
         sure = ripe & (dist[i, j] <= spacing)
         self.anchor_pairs += int(sure.sum())
@@ -233,6 +259,21 @@ class NoiseCalibration:
         if self._scoring.done == FISHER_ITERATIONS:
             self._scoring = None
             self.updates += 1
+
+    def detection_floor(self, covs: np.ndarray) -> np.ndarray:
+        """(m,) the variance (m^2) to raise each detection of configured covariance `covs`
+        (m, 2, 2) to: the spread of re-sightings a frame apart (as one sighting's sigma,
+        isotropic; before MIN_SPREAD_PAIRS pairs, `detection_sigma`) where the detection's
+        largest sigma, as scaled, is CONTRADICTED times below it; 0 elsewhere."""
+        if not self.enabled:
+            return np.zeros(len(covs))
+        sigma = self.detection_sigma
+        if len(self._spread) >= MIN_SPREAD_PAIRS:
+            if self._spread_sigma is None:
+                self._spread_sigma = float(np.median(self._spread)) / RAYLEIGH_MEDIAN
+            sigma = self._spread_sigma
+        claimed = self.scale.variance[0] * np.linalg.eigvalsh(covs)[:, -1]
+        return np.where(claimed * CONTRADICTED**2 < sigma**2, sigma**2, 0.0)
 
     @property
     def pairs_kept(self) -> int:

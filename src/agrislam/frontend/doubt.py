@@ -9,18 +9,27 @@ robot's first turn is far beyond its turns so far too); until judged, the chain 
 graph follow the motion as recorded. Motions held one after another are judged together
 (a glitch of a `pose` record is a jump there and one back). A doubted motion enters the
 chain and the graph as the guess, with the covariance of a guess (geometry/odometry.py),
-so the map's objects place the robot; each is counted in the run's issues."""
+so the map's objects place the robot; each is counted in the run's issues.
+
+So is a covariance: a record claiming a sigma `CONTRADICTED` times below the change of its
+robot's motion from one record to the next (its jitter: noise twice, and what the robot
+really did) is raised to the sigma that jitter would be if it were all noise; both per
+square root of a second, as a random walk's (a record cut at a frame's time carries its
+share of the covariance). An odometry of 1e-8 m on a robot whose every increment differs
+from the last by millimetres would hold the chain rigid, and the plants seen again could
+not bend it."""
 
 from __future__ import annotations
 
 import math
-from collections import Counter
-from dataclasses import dataclass
+from collections import Counter, deque
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from agrislam.estimation.noise_calibration import mahalanobis
 from agrislam.geometry import se2
+from agrislam.geometry.noise import raised
 from agrislam.mapping.map_state import MapState
 
 SUSPECT = 2.0  # a change of motion this many times the robot's largest so far is held
@@ -32,7 +41,14 @@ DECISIVE = CHI2_2D_99  # the score (`MotionDoubt.fit`) by which one version must
 MAX_REACH = 3.0  # m: the farthest object looked for around a placed detection
 MIN_FIT = 2  # detections on the map after the winning version, at least
 MAX_WAIT = 10  # frames a motion is held for while none of them can judge it
+JITTER = 64  # the latest changes of a robot's motion its jitter is the median of
+JITTER_EVERY = 16  # records between two medians
+CONTRADICTED = 100.0  # a record claiming a sigma this many times below the jitter is raised
+# the median change between two increments' noise, in the sigma of each: a distance in 2D
+# (Rayleigh of scale sqrt(2) sigma) and an angle (half-normal of sqrt(2) sigma)
+JITTER_MEDIANS = (1.1774 * math.sqrt(2.0), 0.6745 * math.sqrt(2.0))
 DOUBTED = "odometry motions doubted: far beyond the robot's motion so far (frontend/doubt.py)"
+FLOORED = "odometry covariances far below the robot's jitter raised to it (frontend/doubt.py)"
 
 
 Motion = tuple[float, float, float, float]  # a record's dx, dy, dtheta and its interval dt
@@ -63,6 +79,23 @@ class MotionSoFar:
     moves: int = 0
     latest: Motion | None = None  # believed
     previous: Motion | None = None  # the latest record's
+    jitter: deque[tuple[float, float]] = field(default_factory=lambda: deque(maxlen=JITTER))
+    floor: tuple[float, float] | None = None  # sigmas its jitter means, per sqrt(s)
+    _shaken: int = 0  # changes since the latest median
+
+    def shake(self, motion: Motion) -> None:
+        """The change of `motion` from the latest record's, per sqrt(s), into the jitter
+        (every JITTER_EVERY records its median renews the floor)."""
+        if self.previous is None or motion[3] <= 0.0:
+            return
+        x, y, theta = _carried(self.previous, motion[3])
+        turn = abs(math.remainder(motion[2] - theta, math.tau))
+        root = math.sqrt(motion[3])
+        self.jitter.append((math.hypot(motion[0] - x, motion[1] - y) / root, turn / root))
+        self._shaken += 1
+        if self._shaken >= JITTER_EVERY:
+            median = np.median(np.array(self.jitter), axis=0) / JITTER_MEDIANS
+            self.floor, self._shaken = (float(median[0]), float(median[1])), 0
 
     def predicted(self, dt: float) -> np.ndarray:
         """(3,) the robot's latest believed motion, carried on over dt."""
@@ -117,6 +150,12 @@ def _changed(motion: Motion, noise: tuple[float, float], reference: Motion) -> t
     return max(t, 0.0), max(h, 0.0)
 
 
+def _sigmas(cov: np.ndarray) -> tuple[float, float]:
+    """An odometry covariance's largest translation sigma and its heading sigma."""
+    (a, b, _), (_, c, _), (_, _, heading) = np.asarray(cov, dtype=float).tolist()
+    return math.sqrt(0.5 * (a + c) + math.hypot(0.5 * (a - c), b)), math.sqrt(heading)
+
+
 def _ratio(beyond: float, largest: float) -> float:
     if beyond <= 0.0:
         return 0.0
@@ -134,17 +173,36 @@ class MotionDoubt:
         self.born: dict[str, int] = {}  # per robot, the objects there were when it held one
         self.waited: Counter[str] = Counter()  # per robot, frames that could not judge
 
+    def covariance(self, robot: str, cov: np.ndarray, dt: float) -> np.ndarray:
+        """The covariance `cov` (3, 3) of an odometry record over dt, its translation or
+        heading raised to the robot's jitter over dt if it claims a sigma CONTRADICTED
+        times below it (counted)."""
+        so_far = self.robots.get(robot)
+        if so_far is None or so_far.floor is None or dt <= 0.0:
+            return cov
+        root = math.sqrt(dt)
+        floor, claimed = (so_far.floor[0] * root, so_far.floor[1] * root), _sigmas(cov)
+        low = [c * CONTRADICTED < f for c, f in zip(claimed, floor, strict=True)]
+        if not any(low):
+            return cov
+        self.issues[FLOORED] += 1
+        cov = np.array(cov, dtype=float)
+        if low[0]:
+            cov[:2, :2] = raised(cov[:2, :2], floor[0] ** 2)
+        if low[1]:
+            cov[2, 2] = max(cov[2, 2], floor[1] ** 2)
+        return cov
+
     def check(self, robot: str, delta: np.ndarray, dt: float, cov: np.ndarray) -> Suspect | None:
         """None for a motion believed at once (of covariance `cov`, over dt); else the
         suspect, for `hold`."""
         so_far = self.robots.get(robot) or self.robots.setdefault(robot, MotionSoFar())
         dx, dy, dtheta = np.asarray(delta, dtype=float).tolist()
         motion = (dx, dy, dtheta, float(dt))
-        (a, b, _), (_, c, _), (_, _, heading) = np.asarray(cov, dtype=float).tolist()
-        largest = 0.5 * (a + c) + math.hypot(0.5 * (a - c), b)  # of the translation's
-        noise = (math.sqrt(largest), math.sqrt(heading))
+        noise = _sigmas(cov)
         surprise = so_far.surprise(motion, noise)
         if dt > 0.0:
+            so_far.shake(motion)
             so_far.previous = motion
         if surprise <= SUSPECT:
             so_far.believe(motion, noise)

@@ -14,6 +14,7 @@ import numpy as np
 from agrislam.backend import GraphBackend
 from agrislam.config import FieldSchema, SensorDefaults
 from agrislam.estimation.estimators import Estimators
+from agrislam.estimation.noise_calibration import FLOORED
 from agrislam.frontend.doubt import MotionDoubt
 from agrislam.frontend.sensor_model import SensorModel
 from agrislam.geometry import se2
@@ -36,7 +37,7 @@ class FrontEnd:
         doubt: MotionDoubt,
         issues: Counter[str],
     ) -> None:
-        self.sensor = SensorModel(sensor)
+        self.sensor = SensorModel(sensor, issues)
         self.schema, self.innovation_gate = schema, innovation_gate
         self.backend, self.estimators, self.issues = backend, estimators, issues
         self.doubt = doubt
@@ -52,15 +53,17 @@ class FrontEnd:
 
     # ------------------------------------------------------------------ records in
     def add_odometry(self, odom: Odometry) -> None:
-        """Compose the motion into the robot's pending increment (DESIGN step 2); one far
-        beyond the robot's own is held in doubt, with the motion that would replace it
-        (with those held before it: a glitch of a `pose` record is two suspects)."""
+        """Compose the motion into the robot's pending increment (DESIGN step 2), its
+        covariance no sharper than the robot's jitter allows; a motion far beyond the
+        robot's own is held in doubt, with the motion that would replace it (with those
+        held before it: a glitch of a `pose` record is two suspects)."""
         chain = self.chain(odom.robot, odom.t)
         delta = chain.increment(odom.pose, odom.delta)
         if delta is None:
             return
-        cov = self.sensor.odometry_covariance(odom.cov)
-        suspect = self.doubt.check(odom.robot, delta, odom.t - chain.time, cov)
+        dt = odom.t - chain.time
+        cov = self.doubt.covariance(odom.robot, self.sensor.odometry_covariance(odom.cov), dt)
+        suspect = self.doubt.check(odom.robot, delta, dt, cov)
         if suspect is None:
             chain.move(odom.t, delta, cov)
             return
@@ -75,8 +78,10 @@ class FrontEnd:
 
     def checked(self, frame: Detections) -> list[Detection]:
         """The frame's detections with their measurements checked against the schema; a bad
-        attribute is dropped (and counted), the detection's geometry kept. The first ones
-        teach the survey's d_inter where it has none (estimation/point_spacing.py)."""
+        attribute is dropped (and counted), the detection's geometry kept; a covariance
+        far below what the survey's re-sightings show, or below the solver's least, is
+        raised (and counted). The first ones teach the survey's d_inter where it has none
+        (estimation/point_spacing.py)."""
         checked = []
         for det in frame.objects:
             det, dropped = det.within_schema(self.schema)
@@ -86,8 +91,16 @@ class FrontEnd:
         chain = self.robots.get(frame.robot)
         velocity = chain.velocity() if chain is not None else np.zeros(2)
         checked = self.estimators.sensor.correct(frame.robot, velocity, checked)
-        if checked and not self.estimators.spacing.settled:
-            self.estimators.spacing.observe(self.detection_covariances(checked))
+        if not checked:
+            return checked
+        covs = self.detection_covariances(checked)
+        floor = self.estimators.noise.detection_floor(covs)
+        checked, raised = self.sensor.with_least_variance(checked, covs, floor)
+        if (n_floored := int((raised & (floor > 0.0)).sum())) > 0:
+            self.issues[FLOORED] += n_floored
+        if not self.estimators.spacing.settled:
+            covs = self.detection_covariances(checked) if raised.any() else covs
+            self.estimators.spacing.observe(covs)
         return checked
 
     def detection_covariances(self, detections: list[Detection]) -> np.ndarray:

@@ -1,7 +1,12 @@
 """The sensor model: the uncertainty of each record, its own where it carries one, else the
-configured default (sec. 2.3: a detection deep along its viewing ray, narrow across it)."""
+configured default (sec. 2.3: a detection deep along its viewing ray, narrow across it),
+never below the least variance the solver takes (`SOLVER_VARIANCE`)."""
 
 from __future__ import annotations
+
+import dataclasses
+import math
+from collections import Counter
 
 import numpy as np
 
@@ -12,22 +17,66 @@ from agrislam.geometry.noise import (
     RangeBearing,
     RelativePosition,
     detection_covariance,
+    least_variance_bound,
+    raised,
 )
 from agrislam.records import Detection
+
+# m^2 or rad^2: the least variance of a covariance that reaches the solver. A record may
+# claim 1e-16 (sensor.limits.min_variance); next to a plant's 1e-3 that is an information
+# ratio of 1e13, past what double precision factorises (GTSAM: "indeterminate linear
+# system"). 1e-12 is a micrometre or a microradian, below any real sensor's noise.
+SOLVER_VARIANCE = 1e-12
+RAISED = (
+    "record covariances raised to the solver's least variance, 1e-12 (frontend/sensor_model.py)"
+)
 
 
 class SensorModel:
     """The uncertainty of each record: its own where it carries one, else the configured
-    default; odometry sigmas widened by `sensor.odom_sigma_scale`."""
+    default; odometry sigmas widened by `sensor.odom_sigma_scale`; what is raised to the
+    solver's least variance counted in `issues`."""
 
-    def __init__(self, sensor: SensorDefaults) -> None:
-        self.sensor = sensor
+    def __init__(self, sensor: SensorDefaults, issues: Counter[str]) -> None:
+        self.sensor, self.issues = sensor, issues
 
     def odometry_covariance(self, cov: np.ndarray | None) -> np.ndarray:
         """(3, 3) covariance of a motion increment (x, y, theta in the previous frame)."""
         sensor = self.sensor
         cov = cov if cov is not None else np.diag(sensor.odom_cov_diag)
+        if least_variance_bound(cov) < SOLVER_VARIANCE:
+            self.issues[RAISED] += 1
+            cov = raised(cov, SOLVER_VARIANCE)
         return cov * np.outer(sensor.odom_sigma_scale, sensor.odom_sigma_scale)
+
+    def with_least_variance(
+        self, detections: list[Detection], covs: np.ndarray, least: np.ndarray
+    ) -> tuple[list[Detection], np.ndarray]:
+        """The detections of covariances `covs` (m, 2, 2), each with no variance below
+        `least` (m,) nor the solver's least: its own covariance or sigmas raised (a
+        range's and a bearing's each), or the configured default's put in its place;
+        and which were raised ((m,) bool). Those below the solver's alone are counted."""
+        floor = np.maximum(least, SOLVER_VARIANCE)
+        low = np.linalg.eigvalsh(covs)[:, 0] < floor
+        if not low.any():
+            return detections, low
+        if (n_raised := int((low & (least < SOLVER_VARIANCE)).sum())) > 0:
+            self.issues[RAISED] += n_raised
+        out = list(detections)
+        for i in np.flatnonzero(low).tolist():
+            det, variance = detections[i], float(floor[i])
+            if det.xy is None:
+                assert det.range is not None
+                sigma_range, sigma_bearing = self.range_bearing_sigmas(det)
+                sigma = math.sqrt(variance)
+                out[i] = dataclasses.replace(
+                    det,
+                    sigma_range=max(sigma_range, sigma),
+                    sigma_bearing=max(sigma_bearing, sigma / max(det.range, MIN_RANGE)),
+                )
+            else:
+                out[i] = dataclasses.replace(det, cov=raised(covs[i], variance))
+        return out, low
 
     def range_bearing_sigmas(self, det: Detection) -> tuple[float, float]:
         """A range/bearing detection's sigmas, or the configured defaults."""

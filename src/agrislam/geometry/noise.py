@@ -100,6 +100,24 @@ def check_covariance(cov: np.ndarray, dim: int, what: str) -> np.ndarray:
     return cov
 
 
+def least_variance_bound(cov: np.ndarray) -> float:
+    """A lower bound of a symmetric matrix's smallest eigenvalue (Gershgorin): the least
+    diagonal entry less its row's other entries; exact for a diagonal one. Plain floats:
+    every odometry record's covariance is checked."""
+    rows = np.asarray(cov, dtype=float).tolist()
+    return min(row[i] + abs(row[i]) - sum(map(abs, row)) for i, row in enumerate(rows))
+
+
+def raised(cov: np.ndarray, variance: float | np.ndarray) -> np.ndarray:
+    """Symmetric covariances (..., n, n) with every eigenvalue below `variance` (a number,
+    or one per matrix) raised to it, the directions kept: the least uncertainty a
+    measurement is taken with."""
+    cov = np.asarray(cov, dtype=float)
+    w, v = np.linalg.eigh(cov)
+    w = np.maximum(w, np.asarray(variance, dtype=float)[..., None])
+    return (v * w[..., None, :]) @ np.swapaxes(v, -1, -2)
+
+
 def gaussian(cov: np.ndarray) -> gtsam.noiseModel.Base:
     """Gaussian noise model of a covariance; diagonal ones become the cheaper Diagonal model."""
     variances = cov.diagonal().copy()
