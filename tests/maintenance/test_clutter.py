@@ -3,6 +3,8 @@ keep clutter out of the map (young objects tentative until their sightings confi
 with weak factors, dropped when they say the object is not there), and small surveys: a
 cluttered one must stay clean, a clean one must confirm its plants early."""
 
+from collections import Counter
+
 import numpy as np
 import pytest
 
@@ -73,7 +75,7 @@ def test_knobs_off_leave_the_clean_survey_unchanged():
 
 
 def test_a_tentative_objects_factor_gets_d_inter_of_isotropic_noise():
-    sensor = SensorModel(SensorDefaults())
+    sensor = SensorModel(SensorDefaults(), Counter())
     cov = np.diag([0.1**2, 0.01**2])
     xy = np.array([1.0, 0.0])
     m = sensor.measurement(Detection(xy=(1.0, 0.0), cov=cov), xy, cov, 1.0, 0.2)
